@@ -1,0 +1,68 @@
+"""Batched rotation helpers: skew matrices, SO(3) exp/log, the paper's ZYX Euler angles.
+
+Every function accepts arrays with arbitrary leading axes ``(...)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) with ``skew(a) @ b == cross(a, b)``."""
+    v = np.asarray(v, float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def so3_exp(rotvec: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vectors (rad) -> (..., 3, 3) rotation matrices (Rodrigues)."""
+    rotvec = np.asarray(rotvec, float)
+    flat = rotvec.reshape(-1, 3)
+    return Rotation.from_rotvec(flat).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 3) rotation vectors (rad)."""
+    R = np.asarray(R, float)
+    flat = R.reshape(-1, 3, 3)
+    return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def geodesic_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Angle of ``R_a^T R_b`` in degrees, (...): the rotation error that does not depend on
+    a parameterisation (PAPER.md §6)."""
+    R_rel = np.swapaxes(np.asarray(R_a, float), -1, -2) @ np.asarray(R_b, float)
+    return np.degrees(np.linalg.norm(so3_log(R_rel), axis=-1))
+
+
+def euler_zyx_deg_to_matrix(roll_deg, pitch_deg, yaw_deg) -> np.ndarray:
+    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (the paper's Eq. 9), angles in degrees, (...) -> (..., 3, 3)."""
+    roll, pitch, yaw = np.broadcast_arrays(
+        np.asarray(roll_deg, float), np.asarray(pitch_deg, float), np.asarray(yaw_deg, float)
+    )
+    zyx = np.stack([yaw, pitch, roll], axis=-1).reshape(-1, 3)
+    R = Rotation.from_euler("ZYX", zyx, degrees=True).as_matrix()
+    return R.reshape(roll.shape + (3, 3))
+
+
+def matrix_to_euler_zyx_deg(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 3) as (roll, pitch, yaw) degrees with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    R = np.asarray(R, float)
+    zyx = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
+    return zyx[:, ::-1].reshape(R.shape[:-2] + (3,))
+
+
+def orthonormalize(R: np.ndarray) -> np.ndarray:
+    """Nearest rotation matrix (SVD), (..., 3, 3)."""
+    U, _, Vt = np.linalg.svd(R)
+    D = np.ones(R.shape[:-1])
+    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
+    return (U * D[..., None, :]) @ Vt

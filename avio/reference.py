@@ -1,0 +1,69 @@
+"""The KITTI 2011_10_03 calibration (the paper's reference) and the paper's Table 1.
+
+The matrices are the published KITTI raw calibration of 2011_10_03 (calib_imu_to_velo,
+calib_velo_to_cam, calib_cam_to_cam); ../shared/data/README.md lists them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avio.sequence import Calibration
+
+R_VELO_IMU = np.array(
+    [
+        [9.999976e-01, 7.553071e-04, -2.035826e-03],
+        [-7.854027e-04, 9.998898e-01, -1.482298e-02],
+        [2.024406e-03, 1.482454e-02, 9.998881e-01],
+    ]
+)
+T_VELO_IMU_M = np.array([-8.086759e-01, 3.195559e-01, -7.997231e-01])
+R_CAM_VELO = np.array(
+    [
+        [7.967514e-03, -9.999679e-01, -8.462264e-04],
+        [-2.771053e-03, 8.241710e-04, -9.999958e-01],
+        [9.999644e-01, 7.969825e-03, -2.764397e-03],
+    ]
+)
+T_CAM_VELO_M = np.array([-1.377769e-02, -5.542117e-02, -2.918589e-01])
+R_RECT_00 = np.array(
+    [
+        [9.999454e-01, 7.259129e-03, -7.519551e-03],
+        [-7.292213e-03, 9.999638e-01, -4.381729e-03],
+        [7.487471e-03, 4.436324e-03, 9.999621e-01],
+    ]
+)
+FX_PX, FY_PX, CX_PX, CY_PX = 718.856, 718.856, 607.1928, 185.2157
+IMAGE_SIZE_PX = (1241, 376)
+
+
+def T_cam_imu_2011_10_03(rectified: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``(R_cam_imu, t_cam_imu_m)`` of cam0, unrectified or rectified (``R_rect_00`` applied)."""
+    R = R_CAM_VELO @ R_VELO_IMU
+    t = R_CAM_VELO @ T_VELO_IMU_M + T_CAM_VELO_M
+    if rectified:
+        R, t = R_RECT_00 @ R, R_RECT_00 @ t
+    return R, t
+
+
+def kitti_2011_10_03_calibration(rectified: bool = False) -> Calibration:
+    """The paper's reference calibration: rectified P_rect_00 intrinsics with the
+    unrectified (default) or rectified IMU→cam0 extrinsics; batch of 1."""
+    R_cam_imu, t_cam_imu = T_cam_imu_2011_10_03(rectified)
+    p_imu_cam = -R_cam_imu.T @ t_cam_imu
+    return Calibration.single(FX_PX, FY_PX, CX_PX, CY_PX, R_cam_imu, p_imu_cam)
+
+
+# The paper's Table 1: variable -> (reference, lower, upper, PSO–GA result).
+PAPER_TABLE1 = {
+    "fx": (718.8560, 700.0, 740.0, 717.4954),
+    "fy": (718.8560, 700.0, 740.0, 720.5287),
+    "cx": (607.1928, 600.0, 620.0, 602.0016),
+    "cy": (185.2157, 170.0, 200.0, 180.1210),
+    "roll": (119.5262, 110.0, 140.0, 132.3246),
+    "pitch": (-89.4279, -100.0, -80.0, -89.5779),
+    "yaw": (-28.722, -50.0, -20.0, -41.6586),
+    "tx": (1.1022, 0.8, 1.3, 1.0169),
+    "ty": (-0.3191, -0.5, -0.1, -0.2687),
+    "tz": (0.7461, 0.5, 1.0, 0.7957),
+}
