@@ -64,16 +64,24 @@ class EvalLog:
     def __init__(self, job_dir: Path) -> None:
         self.path = Path(job_dir) / EVAL_LOG
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = None
 
     def append(self, entry: dict) -> None:
-        line = json.dumps(_jsonable(entry), sort_keys=True)
-        with open(self.path, "a") as fh:
-            fh.write(line + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
+        if self._fh is None:
+            self._fh = open(self.path, "a")
+        # flushed to the kernel, which survives a killed process; an fsync per batch would cost
+        # more than the harness's whole overhead budget on a cheap objective
+        self._fh.write(json.dumps(_jsonable(entry), sort_keys=True) + "\n")
+        self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
 
     def truncate_to(self, n_batches: int) -> None:
         """Keep only the first ``n_batches`` complete lines (drops a torn last line after a kill)."""
+        self.close()
         entries = read_eval_log(self.path.parent)[:n_batches]
         tmp = self.path.with_suffix(".jsonl.tmp")
         with open(tmp, "w") as fh:

@@ -1,0 +1,99 @@
+"""Run the front end once per image sequence and keep the result on disk (NPZ, no pickle).
+
+The key is a SHA-256 over the front-end settings, a format version, and either the images'
+content (default; robust to copies and touches) or their paths, sizes and mtimes (cheaper for
+long drives). A different key means a different file, so changed images or settings never
+read a stale result; an unreadable or inconsistent file is rebuilt (and overwritten).
+Files are written to a temporary name and renamed, so a crash never leaves half a file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import fields
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from avio.frontend import FrontendConfig, FrontendStats, track_images
+from avio.sequence import SequenceError, TripletTracks
+
+CACHE_FORMAT_VERSION = 1
+_TRACK_FIELDS = ("frame_index", "uv_px", "valid")
+
+
+class CacheError(ValueError):
+    """The cache folder cannot be used (e.g. it is a file); the message names it."""
+
+
+def cache_key(
+    paths: list[str | Path], config: FrontendConfig, mode: Literal["content", "stat"] = "content"
+) -> str:
+    """Hex SHA-256 identifying (images, settings, format version)."""
+    digest = hashlib.sha256()
+    digest.update(json.dumps({"version": CACHE_FORMAT_VERSION, "config": config.as_dict()},
+                             sort_keys=True).encode())
+    for path in paths:
+        path = Path(path)
+        if mode == "content":
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+        elif mode == "stat":
+            st = path.stat()
+            digest.update(f"{path.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
+        else:
+            raise CacheError(f"cache key mode must be 'content' or 'stat', got {mode!r}")
+    return digest.hexdigest()
+
+
+def _load(path: Path, key: str) -> tuple[TripletTracks, FrontendStats] | None:
+    """The cached result, or None when the file is absent, unreadable or not for ``key``."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["key"]) != key:
+                return None
+            tracks = TripletTracks(**{k: data[k] for k in _TRACK_FIELDS})
+            stats = FrontendStats(**{f.name: data["stats_" + f.name] for f in fields(FrontendStats)})
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, SequenceError):
+        # A truncated or foreign file: rebuilding is the cure, so the error is not raised.
+        return None
+    return tracks, stats
+
+
+def _save(path: Path, key: str, tracks: TripletTracks, stats: FrontendStats) -> None:
+    arrays = {k: getattr(tracks, k) for k in _TRACK_FIELDS}
+    arrays.update({"stats_" + f.name: getattr(stats, f.name) for f in fields(FrontendStats)})
+    handle, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    try:
+        with os.fdopen(handle, "wb") as out:
+            np.savez(out, key=np.array(key), **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def cached_track_images(
+    paths: list[str | Path], config: FrontendConfig, cache_dir: str | Path,
+    key_mode: Literal["content", "stat"] = "content",
+) -> tuple[TripletTracks, FrontendStats, bool]:
+    """``track_images(paths, config)`` through a cache in ``cache_dir``:
+    ``(tracks, stats, hit)`` with ``hit`` True when read from disk."""
+    cache_dir = Path(cache_dir)
+    if cache_dir.exists() and not cache_dir.is_dir():
+        raise CacheError(f"{cache_dir}: cache folder is a file")
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    key = cache_key(paths, config, key_mode)
+    path = cache_dir / f"frontend_{key[:32]}.npz"
+    cached = _load(path, key)
+    if cached is not None:
+        return cached[0], cached[1], True
+    tracks, stats = track_images(paths, config)
+    _save(path, key, tracks, stats)
+    return tracks, stats, False

@@ -1,0 +1,124 @@
+"""Anytime curves: best-so-far objective against evaluations and wall seconds, over seeds.
+
+The unit of progress is the evaluated batch: an optimiser learns the values of a batch when the
+whole batch returns, so a run's best-so-far value changes only at batch ends (``evals`` = the
+cumulative evaluation count after the batch, ``seconds`` = its ``t_end_s`` since the job started,
+optimiser overhead included). Before its first batch a run has no value (NaN); after its last
+batch (finished, stopped or failed) it keeps its final best — the fixed-budget view of
+IOHprofiler, where a run that stopped early still recommends its incumbent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bench.records import eval_log_frame
+
+AXES = ("evals", "seconds")
+TRACE_COLUMNS = ["job_dir", "problem", "optimizer", "seed", "batch", "evals", "seconds", "best_f"]
+
+
+class CurvesError(ValueError):
+    """An evaluation log cannot be turned into a trace; the message names the job folder."""
+
+
+def incumbent_index(f: np.ndarray) -> np.ndarray:
+    """Index of the best-so-far point after each evaluation: (n,) ints into ``f`` (n,).
+
+    The incumbent changes only on a strict improvement, so ties keep the earlier point; NaN
+    values never become the incumbent unless nothing finite came before them.
+    """
+    f = np.asarray(f, float)
+    best_before = np.concatenate([[np.inf], np.fmin.accumulate(f)[:-1]])
+    improved = f < best_before
+    return np.maximum.accumulate(np.where(improved, np.arange(len(f)), 0))
+
+
+def job_trace(job_dir: Path) -> pd.DataFrame:
+    """One row per evaluated batch of one job.
+
+    Columns: ``batch``, ``evals`` (cumulative evaluations at the batch end), ``seconds``
+    (``t_end_s``), ``best_f`` (best objective so far) and ``inc.<metric>`` (each logged metric
+    at the incumbent, i.e. the point the optimiser would return if stopped there).
+    """
+    log = eval_log_frame(job_dir)
+    if log.empty:
+        return pd.DataFrame(columns=["batch", "evals", "seconds", "best_f"])
+    f = log["f"].to_numpy(float)
+    inc = incumbent_index(f)
+    trace = pd.DataFrame({"batch": log["batch"].to_numpy(), "evals": log["eval"].to_numpy(),
+                          "seconds": log["t_end_s"].to_numpy(float), "best_f": f[inc]})
+    for col in log.columns:
+        if col.startswith("m."):
+            trace["inc." + col[2:]] = log[col].to_numpy(float)[inc]
+    last_of_batch = ~trace["batch"].duplicated(keep="last").to_numpy()
+    return trace[last_of_batch].reset_index(drop=True)
+
+
+def run_traces(runs: pd.DataFrame) -> pd.DataFrame:
+    """The batch traces of every run in ``runs`` (one row per job: job_dir, problem, optimizer,
+    seed), stacked: ``TRACE_COLUMNS`` plus ``inc.<metric>`` columns. Runs with an empty log add
+    no rows (they still count as runs wherever ``runs`` is used)."""
+    frames = []
+    for job in runs[["job_dir", "problem", "optimizer", "seed"]].itertuples(index=False):
+        trace = job_trace(Path(job.job_dir))
+        if trace.empty:
+            continue
+        trace.insert(0, "seed", job.seed)
+        trace.insert(0, "optimizer", job.optimizer)
+        trace.insert(0, "problem", job.problem)
+        trace.insert(0, "job_dir", job.job_dir)
+        frames.append(trace)
+    if not frames:
+        return pd.DataFrame(columns=TRACE_COLUMNS)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _grid(x: np.ndarray, max_points: int) -> np.ndarray:
+    """Sorted grid of at most ~``max_points`` values taken from ``x``, log-spaced when x > 0.
+
+    Using the runs' own batch ends keeps the step curves exact; thinning keeps figures small.
+    """
+    u = np.unique(x[np.isfinite(x)])
+    if len(u) <= max_points:
+        return u
+    spaced = (np.geomspace(u[0], u[-1], max_points) if u[0] > 0
+              else np.linspace(u[0], u[-1], max_points))
+    idx = np.searchsorted(u, spaced).clip(max=len(u) - 1)
+    return u[np.unique(np.append(idx, len(u) - 1))]
+
+
+def step_values(x_run: np.ndarray, y_run: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Right-continuous step function of one run on ``grid``: y after the last x <= g; NaN before.
+
+    x_run, y_run: (n_batches,) increasing batch ends and best-so-far values; grid: (n_grid,).
+    """
+    idx = np.searchsorted(x_run, grid, side="right") - 1
+    return np.where(idx >= 0, np.asarray(y_run, float)[idx.clip(min=0)], np.nan)
+
+
+def anytime_curves(traces: pd.DataFrame, axis: str = "evals", max_points: int = 200) -> pd.DataFrame:
+    """Median and inter-quartile band of the best-so-far objective over runs.
+
+    traces: from ``run_traces``. axis: "evals" or "seconds".
+    Returns one row per (problem, optimizer, grid point): ``problem, optimizer, axis, x,
+    n_runs`` (runs that have a value at x), ``median, q25, q75`` of best_f over those runs.
+    """
+    if axis not in AXES:
+        raise CurvesError(f"axis must be one of {AXES}, got {axis!r}")
+    out_cols = ["problem", "optimizer", "axis", "x", "n_runs", "median", "q25", "q75"]
+    rows = []
+    for (problem, optimizer), group in traces.groupby(["problem", "optimizer"], sort=True):
+        grid = _grid(group[axis].to_numpy(float), max_points)
+        values = np.vstack([step_values(run[axis].to_numpy(float), run["best_f"].to_numpy(float), grid)
+                            for _, run in group.groupby("job_dir", sort=True)])
+        n = np.sum(~np.isnan(values), axis=0)
+        q25, med, q75 = np.nanquantile(values, [0.25, 0.5, 0.75], axis=0)
+        rows.append(pd.DataFrame({"problem": problem, "optimizer": optimizer, "axis": axis, "x": grid,
+                                  "n_runs": n, "median": med, "q25": q25, "q75": q75}))
+    if not rows:
+        return pd.DataFrame(columns=out_cols)
+    return pd.concat(rows, ignore_index=True)[out_cols]

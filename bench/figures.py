@@ -1,0 +1,92 @@
+"""PNG figures of anytime curves and runtime ECDFs, one figure per problem.
+
+Built on ``matplotlib.figure.Figure`` with the Agg canvas (no pyplot, no global state, no
+display). PNGs carry no timestamp or software tag, so the same data give the same bytes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+PNG_METADATA = {"Software": None}
+AXIS_LABELS = {"evals": "evaluations", "seconds": "wall time (s)"}
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=100, metadata=PNG_METADATA)
+    return path
+
+
+def _colors(optimizers: list[str]) -> dict[str, tuple]:
+    # A fixed palette keyed by sorted name: the same optimiser keeps its colour across figures.
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10" if len(optimizers) <= 10 else "tab20"]
+    return {name: cmap(i % cmap.N) for i, name in enumerate(sorted(optimizers))}
+
+
+def anytime_figure(curves: pd.DataFrame, problem: str, path: Path) -> Path:
+    """Best-so-far f (median line, IQR band) vs evaluations and vs seconds for one problem.
+
+    curves: ``bench.curves.anytime_curves`` rows for both axes (column ``axis``).
+    """
+    data = curves[curves["problem"] == problem]
+    colors = _colors(list(data["optimizer"].unique()))
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, 2)
+    for ax, axis in zip(axes, AXIS_LABELS):
+        part = data[data["axis"] == axis]
+        for optimizer, g in part.groupby("optimizer", sort=True):
+            x = g["x"].to_numpy(float)
+            ax.step(x, g["median"], where="post", color=colors[optimizer], label=optimizer)
+            ax.fill_between(x, g["q25"], g["q75"], step="post", color=colors[optimizer], alpha=0.2)
+        _log_axes(ax, part["x"], part[["q25", "median", "q75"]].to_numpy(float))
+        ax.set_xlabel(AXIS_LABELS[axis])
+        ax.set_ylabel("best objective so far (median, IQR)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize="small")
+    fig.suptitle(f"{problem}: anytime performance")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _log_axes(ax, x: pd.Series, y: np.ndarray) -> None:
+    # Log scales only when every plotted value is positive; zero optima keep a linear axis.
+    if len(x) and (x.to_numpy(float) > 0).all():
+        ax.set_xscale("log")
+    finite = y[np.isfinite(y)]
+    if finite.size and (finite > 0).all() and finite.max() > 10 * finite.min():
+        ax.set_yscale("log")
+
+
+def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
+    """Fraction of (run, target) pairs hit against evaluations and seconds for one problem.
+
+    ecdf: ``bench.targets.ecdf`` rows for both axes (column ``axis``).
+    """
+    data = ecdf[ecdf["problem"] == problem]
+    colors = _colors(list(data["optimizer"].unique()))
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, 2)
+    for ax, axis in zip(axes, AXIS_LABELS):
+        part = data[data["axis"] == axis]
+        for optimizer, g in part.groupby("optimizer", sort=True):
+            ax.step(g["budget"], g["fraction"], where="post", color=colors[optimizer], label=optimizer)
+        if len(part) and (part["budget"] > 0).all():
+            ax.set_xscale("log")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlabel(AXIS_LABELS[axis])
+        ax.set_ylabel("fraction of (run, target) pairs hit")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize="small")
+    fig.suptitle(f"{problem}: runtime ECDF over all fixed targets")
+    fig.tight_layout()
+    return _save(fig, path)

@@ -1,0 +1,276 @@
+"""The benchmark report: every table, statistic and figure, rebuilt from run records.
+
+Usage::
+
+    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05]
+
+finds every job folder (one holding ``record.json``) under the DIRs and writes into OUT
+(default: the first DIR's ``report/``):
+
+- ``leaderboard.csv`` — one row per (problem, optimizer), see ``bench.leaderboard``;
+- ``runs.csv`` — one row per job; ``pairwise.csv``, ``versus_leader.csv``, ``ranks.csv``
+  (average rank over problems) — see ``bench.stats``;
+- ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
+  ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
+- ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png``;
+- ``tables/`` — the paper's Tables 1–3, when ``bench/tables.py`` exists (see ``PAPER_TABLES_HOOK``);
+- ``report.md`` — one readable document linking all of the above.
+
+Same records, same options → byte-identical CSV, Markdown and PNG files: nothing written
+depends on the time, the machine or where the folders are (job folders are named relative to
+the DIR they were found in). Bad input (a missing DIR, no records, a corrupt record or log)
+ends with one message on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import re
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from bench.curves import CurvesError, anytime_curves, run_traces
+from bench.figures import anytime_figure, ecdf_figure
+from bench.leaderboard import LeaderboardError, leaderboard, runs_table
+from bench.records import RecordError, find_job_dirs, read_record
+from bench.stats import StatsError, average_ranks, pairwise, ranks, summary, versus_leader
+from bench.targets import TargetsError, ecdf, ert_table, hitting_times, problem_targets, targets_table
+
+# The paper-tables hook: if ``bench/tables.py`` exists it must define
+#   write_tables(records: pandas.DataFrame, out_dir: pathlib.Path) -> list[pathlib.Path]
+# (records as from ``bench.records.load_records``); the files it returns are linked from the
+# report, and Markdown ones are included in it verbatim.
+PAPER_TABLES_HOOK = "bench.tables"
+FLOAT_FORMAT = "%.8g"
+MD_FLOAT = ".4g"
+LEADERBOARD_MD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
+                          "best_f_median_ci_low", "best_f_median_ci_high", "ert_main_evals",
+                          "evals_median", "seconds_median", "p_vs_leader", "vs_leader"]
+
+
+class ReportError(ValueError):
+    """The report cannot be built from the given folders; the message says why."""
+
+
+def load_job_records(roots: list[Path]) -> pd.DataFrame:
+    """Every job record under ``roots`` as one flattened row (``bench.records.load_records``),
+    with ``job`` = the job folder relative to the root it was found in (for stable output)."""
+    resolved = [Path(r).resolve() for r in roots]
+    rows = []
+    for job_dir in find_job_dirs(roots):
+        try:
+            record = read_record(job_dir)
+        except TypeError:  # valid JSON that is not an object: read_record cannot label it
+            raise ReportError(f"{job_dir}/record.json: not a JSON object") from None
+        root = next(r for r in resolved if job_dir == r or r in job_dir.parents)
+        rel = job_dir.relative_to(root).as_posix()
+        record["job"] = root.name if rel == "." else f"{root.name}/{rel}"
+        rows.append(record)
+    if not rows:
+        raise ReportError(f"no job records (record.json) found under {', '.join(map(str, roots))}")
+    return pd.json_normalize(rows, sep=".")
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "problem"
+
+
+def _write_csv(frame: pd.DataFrame, path: Path) -> Path:
+    frame.to_csv(path, index=False, float_format=FLOAT_FORMAT, lineterminator="\n")
+    return path
+
+
+def _md_table(frame: pd.DataFrame) -> str:
+    if frame.empty:
+        return "_(none)_"
+    return frame.to_markdown(index=False, floatfmt=MD_FLOAT)
+
+
+def _paper_tables(records: pd.DataFrame, out: Path) -> list[Path] | None:
+    """Run the paper-tables hook when ``bench.tables`` exists; None when it does not."""
+    if importlib.util.find_spec(PAPER_TABLES_HOOK) is None:
+        return None
+    module = importlib.import_module(PAPER_TABLES_HOOK)
+    return [Path(p) for p in module.write_tables(records, out / "tables")]
+
+
+def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, seed: int = 0) -> Path:
+    """Build the whole report from the job folders under ``dirs``; return the path of report.md.
+
+    dirs: folders (or job folders) to search; out: output folder (default ``dirs[0]/report``);
+    pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
+    alpha: significance level after Holm correction; seed: for the bootstrap intervals.
+    Raises ReportError / RecordError / LeaderboardError on bad input.
+    """
+    roots = [Path(d) for d in dirs]
+    if not roots:
+        raise ReportError("no input folder given")
+    out = Path(out) if out is not None else roots[0] / "report"
+    records = load_job_records(roots)
+    runs = runs_table(records)
+    job_label = dict(zip(records["job_dir"].astype(str), records["job"]))
+    traces = run_traces(runs)
+    curves = pd.concat([anytime_curves(traces, axis) for axis in ("evals", "seconds")], ignore_index=True)
+    targets = problem_targets(runs, traces)
+    hits = hitting_times(runs, traces, targets)
+    ert = ert_table(hits, targets)
+    ecdfs = pd.concat([ecdf(hits, axis) for axis in ("evals", "seconds")], ignore_index=True)
+    summ = summary(runs, seed=seed)
+    vs = versus_leader(runs, summ, pairing, alpha)
+    pairs = pairwise(runs, pairing, alpha)
+    avg = average_ranks(ranks(summ))
+    board = leaderboard(runs, summ, vs, ert)
+
+    out.mkdir(parents=True, exist_ok=True)
+    runs_out = runs.assign(job_dir=runs["job_dir"].map(job_label)).rename(columns={"job_dir": "job"})
+    for name, frame in [("leaderboard", board), ("runs", runs_out), ("pairwise", pairs),
+                        ("versus_leader", vs), ("ranks", avg), ("targets", targets_table(targets)),
+                        ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
+        _write_csv(frame, out / f"{name}.csv")
+    figures = {}
+    for problem in sorted(runs["problem"].unique()):
+        slug = _slug(problem)
+        figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png"),
+                            ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"))
+    tables = _paper_tables(records, out)
+    text = _markdown(runs_out, board, avg, pairs, ert, targets_table(targets), figures, tables, out,
+                     pairing, alpha)
+    path = out / "report.md"
+    path.write_text(text)
+    return path
+
+
+def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairing, alpha) -> str:
+    n_failed = int((~runs["valid"]).sum())
+    test = "Mann–Whitney U" if pairing == "none" else "Wilcoxon signed-rank where seeds match, else Mann–Whitney U"
+    lines = [
+        "# Benchmark report",
+        "",
+        f"Built from {len(runs)} job records: {runs['problem'].nunique()} problems, "
+        f"{runs['optimizer'].nunique()} optimisers, {n_failed} failed or without result. "
+        "Rebuild with `python -m bench.report DIR... --out OUT`; every number below is computed "
+        "from the records and is in the CSV files next to this report.",
+        "",
+        "Files: [leaderboard.csv](leaderboard.csv) · [runs.csv](runs.csv) · [pairwise.csv](pairwise.csv) · "
+        "[versus_leader.csv](versus_leader.csv) · [ranks.csv](ranks.csv) · [targets.csv](targets.csv) · "
+        "[ert.csv](ert.csv) · [ecdf.csv](ecdf.csv) · [curves.csv](curves.csv)",
+        "",
+        "## Average rank over problems",
+        "",
+        "Rank within a problem by median final best f (1 = best, ties averaged); mean over the problems "
+        "an optimiser ran.",
+        "",
+        _md_table(avg),
+        "",
+    ]
+    extra_metrics = [c for c in board.columns if c.endswith(("_median", "_rate"))
+                     and not c.startswith(("best_f_", "evals_", "seconds_"))]
+    for problem in sorted(runs["problem"].unique()):
+        b = board[board["problem"] == problem]
+        anytime, ecdf_png = figures[problem]
+        lines += [
+            f"## Problem `{problem}`",
+            "",
+            f"### Leaderboard (significance: {test}, Holm-corrected against the leader, alpha = {alpha:g})",
+            "",
+            _md_table(b[LEADERBOARD_MD_COLUMNS]),
+            "",
+        ]
+        metrics = [c for c in extra_metrics if b[c].notna().any()]
+        if metrics:
+            lines += ["Calibration metrics of the final best point (median over valid runs):", "",
+                      _md_table(b[["optimizer", *metrics]]), ""]
+        lines += [
+            "### Pairwise comparisons",
+            "",
+            "A12 = P(f_a < f_b) + ½P(f_a = f_b), the chance that a run of a ends better than one of b; "
+            "p_holm corrected over all pairs of this problem.",
+            "",
+            _md_table(pairs[pairs["problem"] == problem].drop(columns="problem")),
+            "",
+            "### Fixed targets and expected running time (ERT)",
+            "",
+            _md_table(targets[targets["problem"] == problem].drop(columns="problem")),
+            "",
+            _md_table(ert[ert["problem"] == problem][["optimizer", "target", "n_runs", "n_hit",
+                                                      "ert_evals", "ert_seconds"]]),
+            "",
+            f"![runtime ECDF for {problem}]({ecdf_png.relative_to(out).as_posix()})",
+            "",
+            "### Anytime performance",
+            "",
+            f"![anytime curves for {problem}]({anytime.relative_to(out).as_posix()})",
+            "",
+        ]
+    lines += ["## Paper tables (Tables 1–3)", ""]
+    if tables is None:
+        lines += ["_Not built: `bench/tables.py` is not present in this checkout._", ""]
+    else:
+        for path in tables:
+            rel = path.relative_to(out).as_posix()
+            lines += [f"- [{rel}]({rel})"]
+            if path.suffix == ".md":
+                lines += ["", path.read_text().rstrip(), ""]
+        lines += [""]
+    failed = runs[~runs["valid"]][["job", "problem", "optimizer", "seed", "status", "error_type",
+                                   "error_message"]]
+    lines += ["## Failed runs", "",
+              "Counted in `n_failed`, excluded from tests and medians, included in ERT and ECDF "
+              "as unsuccessful with what they spent.", "", _md_table(failed), ""]
+    lines += [_DEFINITIONS]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+_DEFINITIONS = """## Definitions
+
+- **best f**: the lowest objective value a run evaluated (its record's `best_f`). A run is
+  *valid* when its status is "ok" and it has a best f; others count as failed.
+- **Tests**: two-sided Mann–Whitney U on the final best f of valid runs (runs of different
+  optimisers share no randomness: the seed drives only the optimiser). With `--pairing seed`,
+  Wilcoxon signed-rank on seed-matched differences where both optimisers have the same seeds.
+  Fewer than 2 valid runs on a side: no test (p = NaN, "n/a"). All values equal: p = 1.
+  Holm's step-down correction within each problem.
+- **Median CI**: 95 % percentile bootstrap (2000 resamples, seeded).
+- **Targets**: objective within 1 %, 5 %, 10 % of `f_truth` (f <= f_truth·(1+p)); with
+  `f_truth` = 0 the gap from the reference point closed to within p (f <= p·f_reference);
+  with no truth, the same around the best f found by any run; calibration metrics of the
+  incumbent: rotation error below 0.5° and 0.1°, focal error below 1 px. A run hits a target
+  at the end of the first batch whose incumbent meets it. The main target (leaderboard ERT)
+  is the 5 % objective target.
+- **ERT** (COCO): evaluations (or seconds) spent by all runs — successful ones until their
+  hit, unsuccessful and failed ones in full — divided by the number of successful runs;
+  infinite when none succeeds.
+- **ECDF**: fraction of (run, target) pairs of a problem hit within a budget, over all runs.
+- **Anytime curves**: best-so-far f at batch ends; median and inter-quartile band over runs;
+  a run that stopped keeps its final value.
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry: build the report; 0 on success, 2 with one message on bad input."""
+    parser = argparse.ArgumentParser(prog="python -m bench.report",
+                                     description="Leaderboard, statistics and figures from run records.")
+    parser.add_argument("dirs", nargs="+", help="folders holding job folders (record.json + evals.jsonl)")
+    parser.add_argument("--out", default=None, help="output folder (default: FIRST_DIR/report)")
+    parser.add_argument("--pairing", choices=("none", "seed"), default="none",
+                        help="'seed': Wilcoxon signed-rank on seed-matched runs (default: Mann–Whitney U)")
+    parser.add_argument("--alpha", type=float, default=0.05, help="significance level after Holm (default 0.05)")
+    args = parser.parse_args(argv)
+    try:
+        path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha)
+    except (ReportError, RecordError, LeaderboardError, StatsError, TargetsError, CurvesError) as err:
+        print(f"bench.report: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"bench.report: error: {err.filename or ''}: {err.strerror}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""The paper's hybrid PSO–GA (PAPER.md §4, Fig. 4): one PSO step, then one GA step, repeated.
+
+Search happens in normalised coordinates ``u = (x - lower) / (upper - lower)`` in [0, 1]^d, so
+that velocities, mutation strengths and the stop rule treat every variable alike whatever its
+unit (pixels, degrees, metres); ``ask`` returns raw points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from optimizers.base import OptimizerError, check_bounds
+from optimizers.registry import register
+
+_STOP_RULES = ("patience", "paper", "none")
+
+
+@register("psoga")
+class PsoGa:
+    """Hybrid particle swarm / genetic algorithm; the batch is the swarm (``pop_size`` points).
+
+    Cycle (each phase is one ``ask``/``tell`` of ``pop_size`` points):
+    (1) uniform random swarm in the box; (2) PSO step: ``v = w v + c1 r1 (pbest - u) + c2 r2
+    (gbest - u)``, ``|v| <= v_max``, ``u += v``, clipped to the box (the velocity component
+    that hit a wall is zeroed); (3) GA step on the PSO swarm: binary tournament selection,
+    SBX crossover and polynomial mutation (pymoo operators) make ``pop_size`` children;
+    "keep the best population": the children and the swarm are merged and the best
+    ``pop_size`` survive — a child takes the slot of the worst particle it beats, keeping that
+    slot's velocity and personal best memory; then back to (2). One *iteration* = (2) + (3).
+
+    Stop rules (checked after each iteration; ``stop_rule``):
+    - ``"patience"`` (default): the best f has not improved by more than ``tol`` (relative,
+      ``f_old - f_new > tol * max(|f_old|, 1e-12)``) for ``patience`` iterations.
+    - ``"paper"``: ``Δuᵀ Δu <= epsilon`` with Δu the change of the best point between two
+      iterations, in normalised units (ε = 0.001 ⇔ a move of at most ~3 % of the box diagonal
+      unit); in raw units the pixel variables would dominate the metres ones. It fires as soon
+      as the best point does not move for one iteration, which happens early (see
+      scripts/bench_optimizers.py --stop-rules), hence not the default.
+    - ``"none"``: never stops on its own (fixed-budget benchmarks).
+
+    Hyperparameters: pop_size (particles), w (inertia), c1/c2 (cognitive/social
+    acceleration), v_max (max speed, fraction of the box per step), crossover_prob, sbx_eta,
+    mutation_prob (per variable; default 1/d), pm_eta, and the stop-rule settings above.
+
+    >>> opt = PsoGa([0, 0], [1, 1], seed=0, pop_size=6)
+    >>> X = opt.ask(); opt.tell(X, (X ** 2).sum(axis=1)); X.shape
+    (6, 2)
+    """
+
+    def __init__(self, lower, upper, seed: int, x0=None, pop_size: int = 30, w: float = 0.7298,
+                 c1: float = 1.49618, c2: float = 1.49618, v_max: float = 0.2,
+                 crossover_prob: float = 0.9, sbx_eta: float = 15.0, mutation_prob: float | None = None,
+                 pm_eta: float = 20.0, stop_rule: str = "patience", epsilon: float = 1e-3,
+                 patience: int = 20, tol: float = 1e-6) -> None:
+        from pymoo.algorithms.soo.nonconvex.ga import comp_by_cv_and_fitness
+        from pymoo.core.population import Population
+        from pymoo.core.problem import Problem
+        from pymoo.operators.crossover.sbx import SBX
+        from pymoo.operators.mutation.pm import PM
+        from pymoo.operators.selection.tournament import TournamentSelection
+
+        self.lower, self.upper = check_bounds(lower, upper)
+        d = self.lower.size
+        if int(pop_size) < 2 or int(pop_size) % 2:
+            raise OptimizerError(f"psoga: pop_size must be an even integer >= 2, got {pop_size}")
+        if stop_rule not in _STOP_RULES:
+            raise OptimizerError(f"psoga: stop_rule must be one of {_STOP_RULES}, got {stop_rule!r}")
+        if not (v_max > 0 and epsilon >= 0 and int(patience) >= 1 and tol >= 0):
+            raise OptimizerError(f"psoga: need v_max > 0, epsilon >= 0, patience >= 1, tol >= 0; got "
+                                 f"{v_max}, {epsilon}, {patience}, {tol}")
+        self.n, self.w, self.c1, self.c2, self.v_max = int(pop_size), float(w), float(c1), float(c2), float(v_max)
+        self.stop_rule, self.epsilon, self.patience, self.tol = stop_rule, float(epsilon), int(patience), float(tol)
+        self.rng = np.random.default_rng(seed)
+        self._Population = Population
+        self._unit = Problem(n_var=d, n_obj=1, xl=np.zeros(d), xu=np.ones(d))
+        self._select = TournamentSelection(func_comp=comp_by_cv_and_fitness, pressure=2)
+        self._crossover = SBX(prob=crossover_prob, eta=sbx_eta)
+        self._mutation = PM(prob=1.0, prob_var=(1.0 / d) if mutation_prob is None else mutation_prob, eta=pm_eta)
+
+        self._phase = "init"  # what the next ask produces: "init", "pso" or "ga"
+        self._asked: np.ndarray | None = None  # last asked batch, normalised (n, d)
+        self.u = self.v = self.f = self.pbest_u = self.pbest_f = None
+        self.gbest_u, self.gbest_f = np.full(d, np.nan), np.inf
+        self._prev_gbest_u: np.ndarray | None = None
+        self._f_last_improvement = np.inf  # best f when the patience counter was last reset
+        self.iterations, self._stale, self._stop = 0, 0, None
+
+    def ask(self) -> np.ndarray:
+        if self._asked is not None:
+            raise OptimizerError("psoga: ask() called twice without tell()")
+        if self._phase == "init":
+            U = self.rng.random((self.n, self.lower.size))
+        elif self._phase == "pso":
+            U = self._pso_step()
+        else:
+            U = self._ga_offspring()
+        self._asked = U
+        return np.clip(self.lower + U * (self.upper - self.lower), self.lower, self.upper)  # clip rounding
+
+    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
+        if self._asked is None:
+            raise OptimizerError("psoga: tell() without a pending ask()")
+        f = np.asarray(f, float).ravel()
+        if f.shape != (self.n,) or np.shape(X) != (self.n, self.lower.size):
+            raise OptimizerError(f"psoga: tell expects X ({self.n}, {self.lower.size}) and f ({self.n},), "
+                                 f"got {np.shape(X)} and {f.shape}")
+        f = np.where(np.isnan(f), np.inf, f)  # NaN ranks as worst; +inf already does
+        U, self._asked = self._asked, None
+        if self._phase == "init":
+            self.u, self.f, self.v = U, f, np.zeros_like(U)
+            self.pbest_u, self.pbest_f = U.copy(), f.copy()
+            self._update_gbest()
+            self._prev_gbest_u, self._f_last_improvement = self.gbest_u.copy(), self.gbest_f
+            self._phase = "pso"
+        elif self._phase == "pso":
+            self.u, self.f = U, f
+            self._update_pbest()
+            self._phase = "ga"
+        else:
+            self._keep_best_population(U, f)
+            self._phase = "pso"
+            self._end_iteration()
+
+    def _pso_step(self) -> np.ndarray:
+        r1, r2 = self.rng.random((2, self.n, self.lower.size))
+        v = self.w * self.v + self.c1 * r1 * (self.pbest_u - self.u) + self.c2 * r2 * (self.gbest_u - self.u)
+        v = np.clip(v, -self.v_max, self.v_max)
+        u = self.u + v
+        hit = (u < 0.0) | (u > 1.0)
+        self.v = np.where(hit, 0.0, v)  # absorbing walls: a particle that hit the box stops there
+        return np.clip(u, 0.0, 1.0)
+
+    def _ga_offspring(self) -> np.ndarray:
+        pop = self._Population.new("X", self.u)
+        pop.set("F", self.f[:, None], "CV", np.zeros((self.n, 1)))
+        parents = self._select.do(self._unit, pop, n_select=self.n // 2, n_parents=2, to_pop=False,
+                                  random_state=self.rng).astype(int)  # pymoo returns float indices
+        off = self._crossover.do(self._unit, pop, parents, random_state=self.rng)
+        off = self._mutation.do(self._unit, off, random_state=self.rng)
+        return np.clip(off.get("X"), 0.0, 1.0)
+
+    def _keep_best_population(self, U: np.ndarray, f: np.ndarray) -> None:
+        # (μ+λ) truncation written out by slot so each survivor keeps a velocity and a pbest memory
+        worst_slots = np.argsort(-self.f, kind="stable")
+        best_children = np.argsort(f, kind="stable")
+        wins = f[best_children] < self.f[worst_slots]
+        slots, children = worst_slots[wins], best_children[wins]
+        self.u[slots], self.f[slots] = U[children], f[children]
+        self._update_pbest()
+
+    def _update_pbest(self) -> None:
+        better = self.f < self.pbest_f
+        self.pbest_u[better], self.pbest_f[better] = self.u[better], self.f[better]
+        self._update_gbest()
+
+    def _update_gbest(self) -> None:
+        i = int(np.argmin(self.pbest_f))
+        if self.pbest_f[i] < self.gbest_f:
+            self.gbest_u, self.gbest_f = self.pbest_u[i].copy(), float(self.pbest_f[i])
+
+    def _end_iteration(self) -> None:
+        self.iterations += 1
+        du = self.gbest_u - self._prev_gbest_u
+        if self.stop_rule == "paper" and float(du @ du) <= self.epsilon:
+            self._stop = f"converged: ΔuᵀΔu = {float(du @ du):.3g} <= epsilon = {self.epsilon:g} (normalised units)"
+        self._prev_gbest_u = self.gbest_u.copy()
+        f_old = self._f_last_improvement
+        if not np.isfinite(f_old) or f_old - self.gbest_f > self.tol * max(abs(f_old), 1e-12):
+            self._f_last_improvement, self._stale = self.gbest_f, 0
+        else:
+            self._stale += 1
+        if self.stop_rule == "patience" and self._stale >= self.patience:
+            self._stop = f"converged: best f improved by <= {self.tol:g} (relative) for {self.patience} iterations"
+
+    @property
+    def stop(self) -> str | None:
+        return self._stop
+
+    @property
+    def best(self) -> tuple[np.ndarray, float]:
+        return self.lower + self.gbest_u * (self.upper - self.lower), self.gbest_f
