@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.records import eval_log_frame
+from bench.records import EVAL_LOG, read_eval_log
 
 AXES = ("evals", "seconds")
 TRACE_COLUMNS = ["job_dir", "problem", "optimizer", "seed", "batch", "evals", "seconds", "best_f"]
@@ -33,6 +33,7 @@ def incumbent_index(f: np.ndarray) -> np.ndarray:
     """
     f = np.asarray(f, float)
     best_before = np.concatenate([[np.inf], np.fmin.accumulate(f)[:-1]])
+    best_before[np.isnan(best_before)] = np.inf  # a leading NaN is no incumbent to beat
     improved = f < best_before
     return np.maximum.accumulate(np.where(improved, np.arange(len(f)), 0))
 
@@ -43,19 +44,29 @@ def job_trace(job_dir: Path) -> pd.DataFrame:
     Columns: ``batch``, ``evals`` (cumulative evaluations at the batch end), ``seconds``
     (``t_end_s``), ``best_f`` (best objective so far) and ``inc.<metric>`` (each logged metric
     at the incumbent, i.e. the point the optimiser would return if stopped there).
+    Reads the log lines directly rather than through ``eval_log_frame``: building a frame per
+    batch costs seconds on logs of thousands of one-point batches.
     """
-    log = eval_log_frame(job_dir)
-    if log.empty:
+    entries = read_eval_log(job_dir)
+    if not entries:
         return pd.DataFrame(columns=["batch", "evals", "seconds", "best_f"])
-    f = log["f"].to_numpy(float)
-    inc = incumbent_index(f)
-    trace = pd.DataFrame({"batch": log["batch"].to_numpy(), "evals": log["eval"].to_numpy(),
-                          "seconds": log["t_end_s"].to_numpy(float), "best_f": f[inc]})
-    for col in log.columns:
-        if col.startswith("m."):
-            trace["inc." + col[2:]] = log[col].to_numpy(float)[inc]
-    last_of_batch = ~trace["batch"].duplicated(keep="last").to_numpy()
-    return trace[last_of_batch].reset_index(drop=True)
+    try:
+        sizes = np.array([len(e["f"]) for e in entries])
+        f = np.concatenate([np.asarray(e["f"], float).reshape(-1) for e in entries])
+        names = sorted({k for e in entries for k in e.get("metrics", {})})
+        metrics = {k: np.concatenate([np.asarray(e.get("metrics", {}).get(k, [np.nan] * n), float).reshape(n)
+                                      for e, n in zip(entries, sizes)]) for k in names}
+        batch = np.array([e["batch"] for e in entries])
+        seconds = np.array([e["t_end_s"] for e in entries], float)
+    except (KeyError, TypeError, ValueError) as err:
+        raise CurvesError(f"{Path(job_dir) / EVAL_LOG}: malformed batch entry ({type(err).__name__}: {err})") from None
+    ends = np.cumsum(sizes)
+    keep = sizes > 0  # an empty batch adds no evaluation and no value
+    inc = incumbent_index(f)[ends[keep] - 1]
+    trace = pd.DataFrame({"batch": batch[keep], "evals": ends[keep], "seconds": seconds[keep], "best_f": f[inc]})
+    for k in names:
+        trace["inc." + k] = metrics[k][inc]
+    return trace
 
 
 def run_traces(runs: pd.DataFrame) -> pd.DataFrame:

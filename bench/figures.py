@@ -12,8 +12,13 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, NullFormatter
 
 PNG_METADATA = {"Software": None}
+# Fixed margins instead of tight_layout, and plain-number tick labels instead of mathtext:
+# both measured as most of the time of a report build.
+MARGINS = {"left": 0.07, "right": 0.985, "bottom": 0.13, "top": 0.88, "wspace": 0.22}
+PLAIN = FuncFormatter(lambda value, _: f"{value:g}")
 AXIS_LABELS = {"evals": "evaluations", "seconds": "wall time (s)"}
 
 
@@ -54,17 +59,28 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path) -> Path:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize="small")
     fig.suptitle(f"{problem}: anytime performance")
-    fig.tight_layout()
+    fig.subplots_adjust(**MARGINS)
     return _save(fig, path)
+
+
+def _log_scale(ax, which: str, values: np.ndarray) -> None:
+    """Put the x or y axis of ``ax`` on a log scale with plain-number labels."""
+    getattr(ax, f"set_{which}scale")("log")
+    axis = getattr(ax, f"{which}axis")
+    axis.set_major_formatter(PLAIN)
+    span = np.log10(values.max() / values.min()) if values.size else 0.0
+    # label the minor ticks only when the range is too short to show a labelled decade
+    axis.set_minor_formatter(PLAIN if span < 1.0 else NullFormatter())
 
 
 def _log_axes(ax, x: pd.Series, y: np.ndarray) -> None:
     # Log scales only when every plotted value is positive; zero optima keep a linear axis.
-    if len(x) and (x.to_numpy(float) > 0).all():
-        ax.set_xscale("log")
+    x = x.to_numpy(float)
+    if len(x) and (x > 0).all():
+        _log_scale(ax, "x", x)
     finite = y[np.isfinite(y)]
     if finite.size and (finite > 0).all() and finite.max() > 10 * finite.min():
-        ax.set_yscale("log")
+        _log_scale(ax, "y", finite)
 
 
 def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
@@ -81,12 +97,12 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
         for optimizer, g in part.groupby("optimizer", sort=True):
             ax.step(g["budget"], g["fraction"], where="post", color=colors[optimizer], label=optimizer)
         if len(part) and (part["budget"] > 0).all():
-            ax.set_xscale("log")
+            _log_scale(ax, "x", part["budget"].to_numpy(float))
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel(AXIS_LABELS[axis])
         ax.set_ylabel("fraction of (run, target) pairs hit")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize="small")
     fig.suptitle(f"{problem}: runtime ECDF over all fixed targets")
-    fig.tight_layout()
+    fig.subplots_adjust(**MARGINS)
     return _save(fig, path)

@@ -6,6 +6,7 @@ Hydra stops here: everything below receives plain values.
 from __future__ import annotations
 
 import functools
+import importlib
 import json
 import logging
 from pathlib import Path
@@ -21,6 +22,15 @@ log = logging.getLogger(__name__)
 
 class ConfigError(ValueError):
     """An invalid job config; the message names the key and the valid choices."""
+
+
+def import_plugins(cfg: dict) -> None:
+    """Import the modules listed in ``plugins`` so their ``@register`` decorators run."""
+    for module in cfg.get("plugins") or []:
+        try:
+            importlib.import_module(module)
+        except ImportError as err:
+            raise ConfigError(f"plugins: cannot import {module!r} ({err})") from None
 
 
 def plain(cfg: DictConfig) -> dict:
@@ -74,6 +84,7 @@ def optimizer_factory(cfg: dict, space):
 def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
     """Run one composed job config into ``job_dir``; failures are recorded, not raised."""
     identity = identity_of(cfg)
+    import_plugins(cfg)
     try:
         problem = build_problem(cfg)
     except Exception as exc:  # noqa: BLE001 - a problem that cannot be built fails this job only

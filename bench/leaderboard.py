@@ -47,20 +47,25 @@ def runs_table(records: pd.DataFrame) -> pd.DataFrame:
         if missing.any():
             job = records.loc[missing, "job_dir"].iloc[0]
             raise LeaderboardError(f"{job}/record.json: missing the field {name!r}")
+    seeds = pd.to_numeric(records["seed"], errors="coerce")
+    bad_seed = seeds.isna() | (seeds != seeds.round())
+    if bad_seed.any():
+        job = records.loc[bad_seed, "job_dir"].iloc[0]
+        raise LeaderboardError(f"{job}/record.json: seed {records.loc[bad_seed, 'seed'].iloc[0]!r} is not an integer")
     numeric = lambda name: pd.to_numeric(_column(records, name), errors="coerce").astype(float)  # noqa: E731
     runs = pd.DataFrame({
         "job_dir": records["job_dir"].astype(str),
         "problem": records["problem"].astype(str),
         "optimizer": records["optimizer"].astype(str),
-        "seed": records["seed"].astype(int),
+        "seed": seeds.astype(int),
         "status": records["status"].astype(str),
         "best_f": numeric("best_f"),
         "n_evals": numeric("n_evals"),
         "wall_s": numeric("wall_s"),
         "f_truth": numeric("f_truth"),
         "f_reference": numeric("f_reference"),
-        "error_type": _column(records, "error.type").fillna("").astype(str),
-        "error_message": _column(records, "error.message").fillna("").astype(str),
+        "error_type": _column(records, "error.type").astype(object).fillna("").astype(str),
+        "error_message": _column(records, "error.message").astype(object).fillna("").astype(str),
     })
     runs.insert(5, "valid", (runs["status"] == "ok") & runs["best_f"].notna())
     for col in sorted(c for c in records.columns if c.startswith("best_metrics.")):

@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 
 import optimizers
 from bench import problems
-from bench.job import ConfigError, budget_of
+from bench.job import ConfigError, budget_of, import_plugins
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 _HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
@@ -33,7 +33,9 @@ _HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--inf
 def expand_jobs(argv: list[str]) -> list[list[str]]:
     """The override lists of every job the sweep will run (config sweeper params + command line)."""
     overrides = [a for a in argv if not a.startswith("-")]
-    app_overrides = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
+    # hydra.searchpath decides which configs exist; Hydra's other settings do not change jobs
+    app_overrides = [o for o in overrides
+                     if not o.lstrip("+~").startswith("hydra") or o.startswith("hydra.searchpath")]
     parser = OverridesParser.create()
     # The sweeper params of the primary config, read as data: composing it would need a
     # valid default for every swept group first.
@@ -47,6 +49,7 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
 def check_job(cfg: dict) -> None:
     """Raise ConfigError if one composed job config is invalid."""
     _check_finite(cfg, "")
+    import_plugins(cfg)
     name = cfg["optimizer"].get("name")
     if name not in optimizers.available():
         raise ConfigError(f"optimizer={name!r} is not registered; valid names: {', '.join(optimizers.available())}")

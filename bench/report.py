@@ -131,9 +131,12 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
                         ("versus_leader", vs), ("ranks", avg), ("targets", targets_table(targets)),
                         ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
         _write_csv(frame, out / f"{name}.csv")
-    figures = {}
+    figures, used = {}, set()
     for problem in sorted(runs["problem"].unique()):
         slug = _slug(problem)
+        while slug in used:  # distinct problems whose names reduce to the same file name
+            slug += "_"
+        used.add(slug)
         figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png"),
                             ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"))
     tables = _paper_tables(records, out)

@@ -28,7 +28,7 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
     assert records == [f"sphere/{o}/seed{s}/record.json" for o in ("one_plus_one", "random") for s in range(3)]
     board = pd.read_csv(out / "report" / "leaderboard.csv")
     assert set(board["optimizer"]) == {"random", "one_plus_one"}
-    assert (board["seeds_run"] == 3).all() and (board["seeds_failed"] == 0).all()
+    assert (board["n_runs"] == 3).all() and (board["n_failed"] == 0).all()
     assert "Leaderboard" in proc.stdout and str(out) in proc.stdout
 
 
@@ -44,12 +44,22 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["seed=abc"], "seed must be an integer"),
     ],
 )
-def test_bad_input_fails_before_any_work_with_one_clear_message(tmp_path, args, message):
-    proc = bench("optimizer=random", *args, f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)
-    assert proc.returncode == 2
-    assert message in proc.stdout
-    assert "Traceback" not in proc.stdout + proc.stderr
+def test_bad_input_fails_before_any_work_with_one_clear_message(tmp_path, args, message, capsys):
+    from bench.__main__ import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["optimizer=random", *args, f"hydra.sweep.dir={tmp_path / 'sweep'}"])
+    assert exit_info.value.code == 2
+    out = capsys.readouterr()
+    assert message in out.out
+    assert "Traceback" not in out.out + out.err
     assert not (tmp_path / "sweep").exists()  # nothing ran
+
+
+def test_the_command_line_exits_2_without_a_traceback(tmp_path):
+    proc = bench("optimizer=nope", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)
+    assert proc.returncode == 2 and "Available options in 'optimizer'" in proc.stdout
+    assert "Traceback" not in proc.stdout + proc.stderr and not (tmp_path / "sweep").exists()
 
 
 def _code_blocks(markdown: str, language: str) -> list[str]:
