@@ -14,14 +14,14 @@ import json
 import os
 import tempfile
 import zipfile
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
 from avio.frontend import FrontendConfig, FrontendStats, track_images
-from avio.sequence import SequenceError, TripletTracks
+from avio.sequence import Sequence, SequenceError, TripletTracks
 
 CACHE_FORMAT_VERSION = 1
 _TRACK_FIELDS = ("frame_index", "uv_px", "valid")
@@ -97,3 +97,21 @@ def cached_track_images(
     tracks, stats = track_images(paths, config)
     _save(path, key, tracks, stats)
     return tracks, stats, False
+
+
+def sequence_with_tracks(
+    sequence: Sequence, config: FrontendConfig, cache_dir: str | Path,
+    key_mode: Literal["content", "stat"] = "content",
+) -> Sequence:
+    """``sequence`` with tracks from its images (front end run once, then read from the cache);
+    the front-end settings and the cache key go into ``meta``."""
+    if not sequence.image_paths:
+        raise CacheError(f"sequence {sequence.name!r} has no images to track")
+    if len(sequence.image_paths) != sequence.n_frames:
+        raise CacheError(f"sequence {sequence.name!r}: {len(sequence.image_paths)} images for "
+                         f"{sequence.n_frames} frames")
+    tracks, stats, _ = cached_track_images(list(sequence.image_paths), config, cache_dir, key_mode)
+    meta = {**sequence.meta, "frontend": config.as_dict(),
+            "frontend_key": cache_key(list(sequence.image_paths), config, key_mode),
+            "frontend_inliers_per_pair": stats.n_inliers.tolist()}
+    return replace(sequence, tracks=tracks, meta=meta)

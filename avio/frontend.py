@@ -35,7 +35,10 @@ class FrontendConfig:
     max_corners: Shi–Tomasi candidates asked for per detection.
     quality_level, min_distance_px, block_size: ``cv2.goodFeaturesToTrack`` settings.
     grid: (rows, cols) bucketing grid; max_per_cell: live tracks kept per cell.
-    win_size_px, max_level: LK window (square side) and pyramid levels above the base.
+    win_size_px, max_level: LK window (square side) and pyramid levels above the base. 15 px:
+        on rendered frames the median drift since detection is 0.13/0.18/0.32 px for 11/15/21 px
+        windows (neighbouring blobs at other depths pull larger windows), while on the real
+        frames all three give the same epipolar residual (median Sampson 0.09 px).
     fb_max_px: largest accepted forward–backward error.
     ransac_threshold_px, ransac_confidence: ``cv2.findFundamentalMat`` (FM_RANSAC) settings.
     border_px: tracks closer than this to the image edge are dropped.
@@ -49,7 +52,7 @@ class FrontendConfig:
     block_size: int = 7
     grid: tuple[int, int] = (4, 8)
     max_per_cell: int = 20
-    win_size_px: int = 21
+    win_size_px: int = 15
     max_level: int = 3
     fb_max_px: float = 1.0
     ransac_threshold_px: float = 1.0
@@ -63,7 +66,7 @@ class FrontendConfig:
 
 
 @dataclass(frozen=True)
-class Observations:
+class FeatureObservations:
     """Tracked features: frame_index (m,) int, track_id (m,) int, uv_px (m, 2) pixels."""
 
     frame_index: np.ndarray
@@ -181,7 +184,7 @@ def track_pair(
 
 def track_observations(
     paths: list[str | Path], config: FrontendConfig = FrontendConfig()
-) -> tuple[Observations, FrontendStats, tuple[int, int]]:
+) -> tuple[FeatureObservations, FrontendStats, tuple[int, int]]:
     """Run the front end over the images in order: ``(observations, stats, (width, height))``.
 
     The loop runs over frames, which are sequential by nature (each pair needs the last one's
@@ -213,7 +216,7 @@ def track_observations(
             stats[key].append(value)
         stats["n_new"].append(len(new))
         prev = image
-    obs = Observations(np.concatenate(obs_f), np.concatenate(obs_id), np.concatenate(obs_uv))
+    obs = FeatureObservations(np.concatenate(obs_f), np.concatenate(obs_id), np.concatenate(obs_uv))
     stats = FrontendStats(**{k: np.asarray(v) for k, v in stats.items()})
     return obs, stats, (prev.shape[1], prev.shape[0])
 

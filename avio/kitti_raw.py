@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avio.kitti00 import KittiDataError
+from avio.kitti00 import KittiDataError, content_hash
 from avio.oxts import (
     OxtsError,
     format_timestamps,
@@ -135,6 +135,8 @@ def load_kitti_raw(
     stamps = drive_dir / "image_00" / "timestamps.txt"
     if stamps.is_file():
         meta["image_00_t_s"] = read_timestamps(stamps)[0].tolist()
+    meta["content_hash"] = content_hash(  # identity of the content, not of its location
+        [packets, t, cal.K, cal.R_cam_imu, cal.p_imu_cam_m], {"rectified_extrinsic": rectified})
     return Sequence(
         name=drive_dir.name, imu=imu, frame_t_s=t,
         truth=GroundTruth(p_world_imu_m=p, R_world_imu=R, v_world_imu_mps=v),
@@ -201,7 +203,9 @@ def write_kitti_raw(
 
 def _write_calib(folder: Path, cal: Calibration, image_size_px: tuple[int, int]) -> None:
     R = cal.R_cam_imu[0]
-    t = -R @ cal.p_imu_cam_m[0]
+    # Solve rather than -R p: published R are orthonormal to ~1e-7 only, and the loader
+    # computes p = -R^T t, so this makes the round trip exact.
+    t = np.linalg.solve(R.T, -cal.p_imu_cam_m[0])
     (folder / "calib_imu_to_velo.txt").write_text(
         "calib_time: simulated\n" + _matrix_line("R", np.eye(3)) + _matrix_line("T", np.zeros(3)))
     (folder / "calib_velo_to_cam.txt").write_text(

@@ -6,6 +6,12 @@ roll, pitch, yaw (rad; yaw 0 = east, counter-clockwise), vn, ve, vf, vl, vu (m/s
 level forward/left/up frame), wx, wy, wz (body-frame rates, rad/s), wf, wl, wu (level-frame
 rates), pos_accuracy, vel_accuracy, navstat, numsats, posmode, velmode, orimode.
 
+Checked on the real 2011_09_26 packets: (af, al, au) and (wf, wl, wu) are (ax, ay, az) and
+(wx, wy, wz) rotated by roll and pitch into the heading frame (to 0.02 m/s^2 and 7e-5 rad/s),
+but ``vl`` has the *opposite* sign of the leftward component of (ve, vn) in that frame (the
+course from the positions is ~0.5 deg left of the yaw; vl says right). The loaders use ve, vn,
+vu only; the writer follows dataformat.txt (vl leftward).
+
 Body axes: x forward, y left, z up; ``R_enu_imu = Rz(yaw) Ry(pitch) Rx(roll)`` (devkit
 ``convertOxtsToPose``). Positions: the devkit's Mercator projection with the scale
 ``cos(lat0)`` of the first packet, which is metric (to ~1e-5 over a few km) near ``lat0``.
@@ -140,7 +146,7 @@ def packets_from_states(
     p = p_world_imu_m - p_world_imu_m[0]
     lat, lon = mercator_to_latlon(mx0 + p[:, 0], my0 + p[:, 1], scale)
     yaw_pitch_roll = Rotation.from_matrix(R_world_imu).as_euler("ZYX")
-    R_level = Rotation.from_euler("Z", yaw_pitch_roll[:, 0]).as_matrix()
+    R_level = Rotation.from_euler("Z", yaw_pitch_roll[:, :1]).as_matrix()
     # level-frame vectors: R_level^T (world vector); body vectors go to the world first.
     level = lambda w: np.einsum("nji,nj->ni", R_level, w)  # noqa: E731
     to_world = lambda b: np.einsum("nij,nj->ni", R_world_imu, b)  # noqa: E731

@@ -58,13 +58,32 @@ class CalibrationSpace:
         c = calibration
         parts = [c.fx_px, c.fy_px, c.cx_px, c.cy_px]
         if self.kind == "paper":
-            parts += list(matrix_to_euler_zyx_deg(c.R_cam_imu).T) + list(c.p_imu_cam_m.T)
+            parts += list(_euler_near(c.R_cam_imu, self.nominal.R_cam_imu[0]).T) + list(c.p_imu_cam_m.T)
         else:
             r = np.degrees(so3_log(c.R_cam_imu @ self.nominal.R_cam_imu[0].T))
             parts += list(r.T) + list((c.p_imu_cam_m - self.nominal.p_imu_cam_m[0]).T)
         if "td" in self.space.names:
             parts.append(c.time_offset_s)
         return np.stack(parts, axis=1)
+
+
+def _wrap_deg(a: np.ndarray) -> np.ndarray:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def _euler_near(R: np.ndarray, R_nominal: np.ndarray) -> np.ndarray:
+    """(n, 3) (roll, pitch, yaw) deg of ``R`` on the Euler branch nearest the nominal's angles.
+
+    Every rotation has two ZYX triples, (r, p, y) and (r + 180, -180 - p, y + 180); near the
+    paper's pitch of -90 deg both are in play, and scipy always returns |p| <= 90.
+    """
+    nominal = matrix_to_euler_zyx_deg(R_nominal)
+    first = matrix_to_euler_zyx_deg(R)
+    second = np.stack([first[:, 0] + 180.0, -180.0 - first[:, 1], first[:, 2] + 180.0], axis=1)
+    candidates = np.stack([first, second])  # (2, n, 3)
+    distance = np.abs(_wrap_deg(candidates - nominal)).sum(axis=-1)
+    chosen = candidates[np.argmin(distance, axis=0), np.arange(len(first))]
+    return nominal + _wrap_deg(chosen - nominal)
 
 
 def make_calibration_space(

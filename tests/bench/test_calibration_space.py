@@ -24,8 +24,7 @@ def test_decode_inverts_encode_and_the_reference_decodes_to_the_nominal(kind, wi
     assert np.all(geodesic_angle_deg(cal.R_cam_imu, again.R_cam_imu) < 1e-7)
     np.testing.assert_allclose(again.p_imu_cam_m, cal.p_imu_cam_m, atol=1e-12)
     np.testing.assert_allclose(again.fx_px, X[:, 0])
-    if kind == "local":
-        np.testing.assert_allclose(cs.encode(cal), X, atol=1e-9)
+    np.testing.assert_allclose(cs.encode(cal), X, atol=1e-7)  # the Euler branch nearest the reference
     ref = cs.decode(cs.space.reference[None])
     assert geodesic_angle_deg(ref.R_cam_imu[0], nominal.R_cam_imu[0]) < 1e-9
     np.testing.assert_allclose(ref.p_imu_cam_m, nominal.p_imu_cam_m, atol=1e-12)
