@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation, RotationSpline
 
 from avio.geometry import so3_exp, so3_log
 from avio.sequence import Calibration, GroundTruth, TripletTracks
@@ -47,19 +48,26 @@ def interpolate_pose(truth: GroundTruth, frame_t_s: np.ndarray, t_s: np.ndarray)
     """IMU pose at times t_s (m,) from a truth sampled at frame_t_s (N,).
 
     Position: cubic Hermite through the frame positions and velocities (extrapolated past the
-    ends). Rotation: geodesic interpolation between the bracketing frames (extrapolated with the
-    end pair's rate). Returns (R_world_imu (m, 3, 3), p_world_imu_m (m, 3)).
+    ends). Rotation: scipy's C2 RotationSpline inside [frame_t_s[0], frame_t_s[-1]]; outside,
+    extrapolated geodesically with the end pair's rate.
+    Returns (R_world_imu (m, 3, 3), p_world_imu_m (m, 3)).
     """
     frame_t_s = np.asarray(frame_t_s, float)
     t_s = np.asarray(t_s, float)
     if len(frame_t_s) < 2:
         raise CameraSimError(f"avio.camera_sim: interpolating a truth needs >= 2 frames, got {len(frame_t_s)}")
     hermite = CubicHermiteSpline(frame_t_s, truth.p_world_imu_m, truth.v_world_imu_mps, axis=0, extrapolate=True)
-    i = np.clip(np.searchsorted(frame_t_s, t_s, side="right") - 1, 0, len(frame_t_s) - 2)
-    alpha = (t_s - frame_t_s[i]) / (frame_t_s[i + 1] - frame_t_s[i])
-    R0 = truth.R_world_imu[i]
-    rel = so3_log(np.swapaxes(R0, -1, -2) @ truth.R_world_imu[i + 1])
-    return R0 @ so3_exp(alpha[:, None] * rel), hermite(t_s)
+    R = RotationSpline(frame_t_s, Rotation.from_matrix(truth.R_world_imu))(
+        np.clip(t_s, frame_t_s[0], frame_t_s[-1])
+    ).as_matrix()
+    outside = (t_s < frame_t_s[0]) | (t_s > frame_t_s[-1])
+    if np.any(outside):
+        i = np.where(t_s[outside] < frame_t_s[0], 0, len(frame_t_s) - 2)
+        alpha = (t_s[outside] - frame_t_s[i]) / (frame_t_s[i + 1] - frame_t_s[i])
+        R0 = truth.R_world_imu[i]
+        rel = so3_log(np.swapaxes(R0, -1, -2) @ truth.R_world_imu[i + 1])
+        R[outside] = R0 @ so3_exp(alpha[:, None] * rel)
+    return R, hermite(t_s)
 
 
 def camera_poses(
@@ -116,7 +124,7 @@ def project_landmarks(
     for start in range(0, len(R_world_cam), frames_per_chunk):  # chunks bound memory; each is vectorised
         R = R_world_cam[start : start + frames_per_chunk]
         d = landmarks_world[None, :, :] - p_world_cam[start : start + frames_per_chunk, None, :]
-        x_cam = np.einsum("cji,clj->cli", R, d)
+        x_cam = d @ R  # rows of R_world_cam^T (X - p); matmul is much faster than einsum here
         z = x_cam[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             u = fx * x_cam[..., 0] / z + cx

@@ -110,8 +110,9 @@ class ImuNoise:
     gyro_bias_walk: gyroscope bias random walk, rad/s^2/sqrt(Hz).
     """
 
-    accel_noise: float = 0.01 / np.sqrt(0.01)
-    gyro_noise: float = 0.000175 / np.sqrt(0.01)
+    # GTSAM's KITTI figures (kitti00/KittiEquivBiasedImu_metadata.txt), read as densities
+    accel_noise: float = 0.01
+    gyro_noise: float = 0.000175
     accel_bias_walk: float = 0.000167
     gyro_bias_walk: float = 2.91e-6
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import BSpline, make_interp_spline
+from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from avio.sequence import GroundTruth
@@ -205,16 +206,18 @@ def _make_speed(kind: str, duration_s: float, speed_mps: float, pad_s: float, n_
         coef = np.ones(n_coef)
     else:
         level = 0.25 if kind == "full3d" else 0.12
-        # Slowly varying cruise speed: AR(1) over the knots.
-        ar = np.zeros(n_coef)
-        for i in range(1, n_coef):  # sequential recursion; no vectorised library form worth it
-            ar[i] = 0.9 * ar[i - 1] + np.sqrt(1 - 0.81) * rng.standard_normal()
+        # Slowly varying cruise speed: a unit-variance AR(1) over the knots, starting at 0.
+        ar = lfilter([np.sqrt(1 - 0.81)], [1.0, -0.9], np.r_[0.0, rng.standard_normal(n_coef - 1)])
         coef = np.clip(1.0 + level * ar, 0.5, 1.6)
         t_coef = knots[: n_coef] + 0.5 * (k + 1) * _SPEED_KNOT_S  # Greville-like abscissae
         shape = np.array([0.7, 0.35, 0.08] + [0.0] * 7 + [0.08, 0.35, 0.7])
         for j in range(n_stops):
             centre = rng.uniform(0.25 + 0.5 * j / max(n_stops, 1), 0.25 + 0.5 * (j + 1) / max(n_stops, 1))
             i = int(np.searchsorted(t_coef, centre * duration_s)) - len(shape) // 2
+            if i < 0 or i + len(shape) > n_coef:
+                raise TrajectoryError(
+                    f"avio.trajectory: a {duration_s} s drive is too short for {n_stops} stop(s)"
+                )
             coef[i : i + len(shape)] *= shape
     spline = BSpline(knots, coef, k)
     dist = spline.antiderivative(1)
@@ -234,7 +237,8 @@ def make_trajectory(
 
     The distance driven over [0, duration_s] is exactly ``speed_mps * duration_s`` (along the
     path). It is defined on [-pad_s, duration_s + pad_s] so that camera times shifted by a
-    time offset stay inside. n_stops: exact stops (default 1 for city kinds, 0 otherwise).
+    time offset stay inside. n_stops: exact stops of ~2 s (default 1 for city kinds of
+    20 s or more, 0 otherwise).
     A pure function of its arguments.
     """
     if kind not in KINDS:
@@ -244,7 +248,7 @@ def make_trajectory(
             f"avio.trajectory: need duration_s > 0, speed_mps > 0, pad_s >= 0; got {duration_s}, {speed_mps}, {pad_s}"
         )
     if n_stops is None:
-        n_stops = 1 if kind in ("city", "city_hills") else 0
+        n_stops = 1 if kind in ("city", "city_hills") and duration_s >= 20.0 else 0
     rng = np.random.default_rng(seed)
     speed = _make_speed(kind, duration_s, speed_mps, pad_s, n_stops, rng)
     dist = speed.antiderivative(1)

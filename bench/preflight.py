@@ -103,3 +103,13 @@ def preflight(argv: list[str]) -> int:
     finally:
         GlobalHydra.instance().clear()
     return 0
+
+
+def compose_job(overrides: list[str]) -> dict:
+    """One job's config as plain data, composed from ``conf/`` with ``overrides`` (for scripts)."""
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="script"):
+            return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
+    finally:
+        GlobalHydra.instance().clear()
