@@ -34,9 +34,8 @@ GRAVITY_MPS2 = 9.81
 # GTSAM's KITTI figures (../shared/data/kitti00/KittiEquivBiasedImu_metadata.txt) read as GTSAM
 # reads them: continuous-time densities. At 100 Hz that is 0.1 m/s^2 and 1.75e-3 rad/s per
 # sample, a few times the real drive's high-frequency scatter (~0.02-0.035 m/s^2, ~0.4-1.6e-3
-# rad/s, from second differences of KittiEquivBiasedImu.txt). ImuNoise()'s defaults divide by
-# sqrt(dt) once more (1.0 m/s^2 per sample), hence this explicit default.
-OXTS_IMU_NOISE = ImuNoise(accel_noise=0.01, gyro_noise=0.000175, accel_bias_walk=0.000167, gyro_bias_walk=2.91e-6)
+# rad/s, from second differences of KittiEquivBiasedImu.txt). These are ImuNoise()'s defaults.
+OXTS_IMU_NOISE = ImuNoise()
 _STREAMS = ("trajectory", "calibration", "imu", "landmarks", "tracks", "render")
 
 
