@@ -78,8 +78,9 @@ class VioRmseProblem:
         self._prepared = {id(sequence): prepare(sequence, self.filter_config)}
         truth = sequence.truth_calibration
         self.truth = None if truth is None else self.calibration_space.encode(truth)[0]
-        anchors = np.array([self.space.reference] + ([] if self.truth is None else [self.truth]))
-        f_anchor, _ = self._score(self.calibration_space.decode(anchors), sequence)
+        # the exact calibrations: a round trip through Euler angles near gimbal lock moves R by ~1e-7
+        anchors = Calibration.stack([sequence.reference_calibration] + ([] if truth is None else [truth]))
+        f_anchor, _ = self._score(anchors, sequence)
         self.f_reference = float(f_anchor[0])
         self.f_truth = None if self.truth is None else float(f_anchor[1])
 
