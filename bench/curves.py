@@ -3,9 +3,11 @@
 The unit of progress is the evaluated batch: an optimiser learns the values of a batch when the
 whole batch returns, so a run's best-so-far value changes only at batch ends (``evals`` = the
 cumulative evaluation count after the batch, ``seconds`` = its ``t_end_s`` since the job started,
-optimiser overhead included). Before its first batch a run has no value (NaN); after its last
-batch (finished, stopped or failed) it keeps its final best — the fixed-budget view of
-IOHprofiler, where a run that stopped early still recommends its incumbent.
+optimiser overhead included). Before its first batch a run has nothing to recommend: in the
+median and quartiles over runs it counts as +inf (not drawn), so those statistics never rise as
+late-starting runs join; after its last batch (finished, stopped or failed) a run keeps its
+final best — the fixed-budget view of IOHprofiler, where a run that stopped early still
+recommends its incumbent. A NaN objective is likewise no recommendation (+inf).
 """
 
 from __future__ import annotations
@@ -111,12 +113,29 @@ def step_values(x_run: np.ndarray, y_run: np.ndarray, grid: np.ndarray) -> np.nd
     return np.where(idx >= 0, np.asarray(y_run, float)[idx.clip(min=0)], np.nan)
 
 
+def quantiles_with_inf(values: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Linear-interpolation quantiles over axis 0 of (n_runs, n_grid) values that may hold +inf.
+
+    Returns (len(q), n_grid). Hand-written because numpy's quantile interpolates between two
+    infinities as inf - inf = NaN; here anything interpolated towards +inf is +inf.
+    """
+    v = np.sort(values, axis=0)
+    h = (v.shape[0] - 1) * np.asarray(q, float)[:, None]
+    lo, hi = np.floor(h).astype(int), np.ceil(h).astype(int)
+    cols = np.arange(v.shape[1])[None, :]
+    a, b = v[lo, cols], v[hi, cols]
+    w = np.broadcast_to(h - lo, a.shape)
+    diff = np.subtract(b, a, out=np.zeros_like(a), where=np.isfinite(b))
+    return np.where((w == 0) | (a == b), a, np.where(np.isfinite(b), a + w * diff, np.inf))
+
+
 def anytime_curves(traces: pd.DataFrame, axis: str = "evals", max_points: int = 200) -> pd.DataFrame:
     """Median and inter-quartile band of the best-so-far objective over runs.
 
     traces: from ``run_traces``. axis: "evals" or "seconds".
     Returns one row per (problem, optimizer, grid point): ``problem, optimizer, axis, x,
-    n_runs`` (runs that have a value at x), ``median, q25, q75`` of best_f over those runs.
+    n_runs`` (runs that have reported by x), ``median, q25, q75`` of best_f over all the
+    group's runs, a run that has not reported yet counting as +inf (see the module doc).
     """
     if axis not in AXES:
         raise CurvesError(f"axis must be one of {AXES}, got {axis!r}")
@@ -127,7 +146,7 @@ def anytime_curves(traces: pd.DataFrame, axis: str = "evals", max_points: int = 
         values = np.vstack([step_values(run[axis].to_numpy(float), run["best_f"].to_numpy(float), grid)
                             for _, run in group.groupby("job_dir", sort=True)])
         n = np.sum(~np.isnan(values), axis=0)
-        q25, med, q75 = np.nanquantile(values, [0.25, 0.5, 0.75], axis=0)
+        q25, med, q75 = quantiles_with_inf(np.where(np.isnan(values), np.inf, values), [0.25, 0.5, 0.75])
         rows.append(pd.DataFrame({"problem": problem, "optimizer": optimizer, "axis": axis, "x": grid,
                                   "n_runs": n, "median": med, "q25": q25, "q75": q75}))
     if not rows:

@@ -38,11 +38,15 @@ def _colors(optimizers: list[str]) -> dict[str, tuple]:
     return {name: cmap(i % cmap.N) for i, name in enumerate(sorted(optimizers))}
 
 
-def anytime_figure(curves: pd.DataFrame, problem: str, path: Path) -> Path:
+def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
+                   levels: dict[str, float] | None = None) -> Path:
     """Best-so-far f (median line, IQR band) vs evaluations and vs seconds for one problem.
 
-    curves: ``bench.curves.anytime_curves`` rows for both axes (column ``axis``).
+    curves: ``bench.curves.anytime_curves`` rows for both axes (column ``axis``);
+    levels: labelled horizontal reference lines in objective units (e.g. f at the truth and at
+    the reference calibration); non-finite values are skipped.
     """
+    levels = {k: v for k, v in (levels or {}).items() if v is not None and np.isfinite(v)}
     data = curves[curves["problem"] == problem]
     colors = _colors(list(data["optimizer"].unique()))
     fig = Figure(figsize=(11, 4.2))
@@ -51,16 +55,30 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path) -> Path:
         part = data[data["axis"] == axis]
         for optimizer, g in part.groupby("optimizer", sort=True):
             x = g["x"].to_numpy(float)
-            ax.step(x, g["median"], where="post", color=colors[optimizer], label=optimizer)
+            # a marker where there are too few points for a visible step (one big batch)
+            ax.step(x, g["median"], where="post", color=colors[optimizer], label=optimizer,
+                    marker="o" if len(x) < 3 else None, markersize=4)
             ax.fill_between(x, g["q25"], g["q75"], step="post", color=colors[optimizer], alpha=0.2)
-        _log_axes(ax, part["x"], part[["q25", "median", "q75"]].to_numpy(float))
+        for (label, value), style in zip(sorted(levels.items()), ("--", ":", "-.")):
+            ax.axhline(value, color="0.3", linestyle=style, linewidth=1, label=label)
+        y = np.append(part[["q25", "median", "q75"]].to_numpy(float).ravel(), list(levels.values()))
+        _log_axes(ax, part["x"], y)
         ax.set_xlabel(AXIS_LABELS[axis])
         ax.set_ylabel("best objective so far (median, IQR)")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize="small")
+    _legend_or_note(axes)
     fig.suptitle(f"{problem}: anytime performance")
     fig.subplots_adjust(**MARGINS)
     return _save(fig, path)
+
+
+def _legend_or_note(axes) -> None:
+    """A legend on the first panel, or a note on each empty panel (e.g. every run failed)."""
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize="small")
+    for ax in axes:
+        if not ax.get_legend_handles_labels()[0]:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
 
 
 def _log_scale(ax, which: str, values: np.ndarray) -> None:
@@ -95,14 +113,15 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
     for ax, axis in zip(axes, AXIS_LABELS):
         part = data[data["axis"] == axis]
         for optimizer, g in part.groupby("optimizer", sort=True):
-            ax.step(g["budget"], g["fraction"], where="post", color=colors[optimizer], label=optimizer)
+            ax.step(g["budget"], g["fraction"], where="post", color=colors[optimizer], label=optimizer,
+                    marker="o" if len(g) < 3 else None, markersize=4)
         if len(part) and (part["budget"] > 0).all():
             _log_scale(ax, "x", part["budget"].to_numpy(float))
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel(AXIS_LABELS[axis])
         ax.set_ylabel("fraction of (run, target) pairs hit")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize="small")
+    _legend_or_note(axes)
     fig.suptitle(f"{problem}: runtime ECDF over all fixed targets")
     fig.subplots_adjust(**MARGINS)
     return _save(fig, path)

@@ -94,7 +94,7 @@ def leaderboard(runs: pd.DataFrame, summary: pd.DataFrame, vs_leader: pd.DataFra
         how, suffix = ("mean", "rate") if name in RATE_METRICS else ("median", "median")
         board = board.merge(valid.groupby(keys)[col].agg(how).rename(f"{name}_{suffix}").reset_index(),
                             on=keys, how="left")
-    main = ert[ert["main"]][keys + ["target", "ert_evals", "ert_seconds"]].rename(
+    main = ert[ert["main"].astype(bool)][keys + ["target", "ert_evals", "ert_seconds"]].rename(
         columns={"target": "main_target", "ert_evals": "ert_main_evals", "ert_seconds": "ert_main_seconds"})
     board = board.merge(main, on=keys, how="left")
     used = grouped.agg(evals_median=("n_evals", "median"), seconds_median=("wall_s", "median")).reset_index()

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05]
+    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05] [--no-tables]
 
 finds every job folder (one holding ``record.json``) under the DIRs and writes into OUT
 (default: the first DIR's ``report/``):
@@ -13,7 +13,8 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
 - ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
   ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
 - ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png``;
-- ``tables/`` — the paper's Tables 1–3, when ``bench/tables.py`` exists (see ``PAPER_TABLES_HOOK``);
+- ``tables/`` — the paper's Tables 1–3, when ``bench/tables.py`` exists and the records hold a
+  VIO problem (see ``PAPER_TABLES_HOOK``; ``--no-tables`` skips them);
 - ``report.md`` — one readable document linking all of the above.
 
 Same records, same options → byte-identical CSV, Markdown and PNG files: nothing written
@@ -40,10 +41,11 @@ from bench.records import RecordError, find_job_dirs, read_record
 from bench.stats import StatsError, average_ranks, pairwise, ranks, summary, versus_leader
 from bench.targets import TargetsError, ecdf, ert_table, hitting_times, problem_targets, targets_table
 
-# The paper-tables hook: if ``bench/tables.py`` exists it must define
-#   write_tables(records: pandas.DataFrame, out_dir: pathlib.Path) -> list[pathlib.Path]
-# (records as from ``bench.records.load_records``); the files it returns are linked from the
-# report, and Markdown ones are included in it verbatim.
+# The paper-tables hook: if ``bench/tables.py`` exists, the report calls its
+#   build_tables(dirs: list[Path], out: Path) -> list[Path]
+# with the report's input folders and ``OUT/tables``; the files it returns are linked from the
+# report and Markdown ones included verbatim. Its ``TablesError`` (records that cannot make the
+# tables, e.g. a sweep of analytic problems only) becomes a note in the report, not a failure.
 PAPER_TABLES_HOOK = "bench.tables"
 FLOAT_FORMAT = "%.8g"
 MD_FLOAT = ".4g"
@@ -90,20 +92,25 @@ def _md_table(frame: pd.DataFrame) -> str:
     return frame.to_markdown(index=False, floatfmt=MD_FLOAT)
 
 
-def _paper_tables(records: pd.DataFrame, out: Path) -> list[Path] | None:
-    """Run the paper-tables hook when ``bench.tables`` exists; None when it does not."""
+def _paper_tables(dirs: list[Path], out: Path) -> tuple[list[Path], str]:
+    """Run the paper-tables hook: (files written, note for the report when none were)."""
     if importlib.util.find_spec(PAPER_TABLES_HOOK) is None:
-        return None
+        return [], "Not built: `bench/tables.py` is not present in this checkout."
     module = importlib.import_module(PAPER_TABLES_HOOK)
-    return [Path(p) for p in module.write_tables(records, out / "tables")]
+    try:
+        return [Path(p) for p in module.build_tables(dirs, out / "tables")], ""
+    except module.TablesError as err:
+        return [], f"Not built: {err}."
 
 
-def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, seed: int = 0) -> Path:
+def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, seed: int = 0,
+                 paper_tables: bool = True) -> Path:
     """Build the whole report from the job folders under ``dirs``; return the path of report.md.
 
     dirs: folders (or job folders) to search; out: output folder (default ``dirs[0]/report``);
     pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
-    alpha: significance level after Holm correction; seed: for the bootstrap intervals.
+    alpha: significance level after Holm correction; seed: for the bootstrap intervals;
+    paper_tables: also build the paper's Tables 1–3 through ``bench.tables`` when it exists.
     Raises ReportError / RecordError / LeaderboardError on bad input.
     """
     roots = [Path(d) for d in dirs]
@@ -137,14 +144,20 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
         while slug in used:  # distinct problems whose names reduce to the same file name
             slug += "_"
         used.add(slug)
-        figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png"),
+        anchors = runs.loc[runs["problem"] == problem, ["f_truth", "f_reference"]].median()
+        levels = {"f at truth": anchors["f_truth"], "f at reference": anchors["f_reference"]}
+        figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png", levels),
                             ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"))
-    tables = _paper_tables(records, out)
+    tables = _paper_tables(roots, out) if paper_tables else ([], "Not built: disabled for this report.")
     text = _markdown(runs_out, board, avg, pairs, ert, targets_table(targets), figures, tables, out,
                      pairing, alpha)
     path = out / "report.md"
     path.write_text(text)
     return path
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairing, alpha) -> str:
@@ -153,8 +166,8 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
     lines = [
         "# Benchmark report",
         "",
-        f"Built from {len(runs)} job records: {runs['problem'].nunique()} problems, "
-        f"{runs['optimizer'].nunique()} optimisers, {n_failed} failed or without result. "
+        f"Built from {_count(len(runs), 'job record')}: {_count(runs['problem'].nunique(), 'problem')}, "
+        f"{_count(runs['optimizer'].nunique(), 'optimiser')}, {n_failed} failed or without result. "
         "Rebuild with `python -m bench.report DIR... --out OUT`; every number below is computed "
         "from the records and is in the CSV files next to this report.",
         "",
@@ -210,15 +223,15 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
             "",
         ]
     lines += ["## Paper tables (Tables 1–3)", ""]
-    if tables is None:
-        lines += ["_Not built: `bench/tables.py` is not present in this checkout._", ""]
-    else:
-        for path in tables:
-            rel = path.relative_to(out).as_posix()
-            lines += [f"- [{rel}]({rel})"]
-            if path.suffix == ".md":
-                lines += ["", path.read_text().rstrip(), ""]
-        lines += [""]
+    paths, note = tables
+    if note:
+        lines += [f"_{note}_", ""]
+    for path in paths:
+        rel = path.relative_to(out).as_posix()
+        lines += [f"- [{rel}]({rel})"]
+        if path.suffix == ".md":
+            lines += ["", path.read_text().rstrip(), ""]
+    lines += [""]
     failed = runs[~runs["valid"]][["job", "problem", "optimizer", "seed", "status", "error_type",
                                    "error_message"]]
     lines += ["## Failed runs", "",
@@ -236,7 +249,8 @@ _DEFINITIONS = """## Definitions
   optimisers share no randomness: the seed drives only the optimiser). With `--pairing seed`,
   Wilcoxon signed-rank on seed-matched differences where both optimisers have the same seeds.
   Fewer than 2 valid runs on a side: no test (p = NaN, "n/a"). All values equal: p = 1.
-  Holm's step-down correction within each problem.
+  Holm's step-down correction within each problem. Few seeds cannot show significance: the
+  smallest two-sided Mann–Whitney p is 2/C(n+m, n), 0.1 for 3 vs 3 runs, 0.0079 for 5 vs 5.
 - **Median CI**: 95 % percentile bootstrap (2000 resamples, seeded).
 - **Targets**: objective within 1 %, 5 %, 10 % of `f_truth` (f <= f_truth·(1+p)); with
   `f_truth` = 0 the gap from the reference point closed to within p (f <= p·f_reference);
@@ -262,9 +276,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairing", choices=("none", "seed"), default="none",
                         help="'seed': Wilcoxon signed-rank on seed-matched runs (default: Mann–Whitney U)")
     parser.add_argument("--alpha", type=float, default=0.05, help="significance level after Holm (default 0.05)")
+    parser.add_argument("--no-tables", action="store_true",
+                        help="skip the paper's Tables 1-3 (bench/tables.py re-runs the VIO, which takes time)")
     args = parser.parse_args(argv)
     try:
-        path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha)
+        path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
+                            paper_tables=not args.no_tables)
     except (ReportError, RecordError, LeaderboardError, StatsError, TargetsError, CurvesError) as err:
         print(f"bench.report: error: {err}", file=sys.stderr)
         return 2

@@ -61,6 +61,8 @@ class AnalyticProblem:
         self._span = self.space.upper - self.space.lower
         self.truth = np.array([PAPER_TABLE1[n][3] for n in self.space.names])
         self._u_star = (self.truth - self.space.lower) / self._span
+        self.f_truth = 0.0
+        self.f_reference = float(self.evaluate(self.space.reference[None])[0][0])
 
     @property
     def identity(self) -> dict:

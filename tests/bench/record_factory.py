@@ -56,6 +56,7 @@ def write_job(
         all_f.extend(f)
         for key, values in metrics.items():
             all_m.setdefault(key, []).extend(values)
+    log.close()
     if all_f:
         best = int(np.nanargmin(all_f))
         best_f, best_x = all_f[best], [all_f[best], float(seed)]
