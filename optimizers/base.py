@@ -58,7 +58,7 @@ class BestTracker:
         self.f = np.inf
 
     def update(self, X: np.ndarray, f: np.ndarray) -> None:
-        f = np.asarray(f, float)
-        if f.size and np.nanmin(f) < self.f:
-            i = int(np.nanargmin(f))
+        f = np.where(np.isfinite(np.asarray(f, float)), f, np.inf)  # NaN/inf never become best
+        if f.size and f.min() < self.f:
+            i = int(np.argmin(f))
             self.x, self.f = np.array(X[i], float), float(f[i])

@@ -36,10 +36,12 @@ class CmaEs:
         if not sigma0 > 0:
             raise OptimizerError(f"cmaes: sigma0 must be > 0 (fraction of the box), got {sigma0}")
         self._span = self.upper - self.lower
-        mean = np.full(d, 0.5) if x0 is None else np.clip((np.asarray(x0, float) - self.lower) / self._span, 0, 1)
+        mean = np.full(d, 0.5) if x0 is None else (np.asarray(x0, float) - self.lower) / self._span
+        mean = np.clip(mean, 0.0, 1.0)
         # cmaes needs a seed in [0, 2**32); any int the harness passes maps there reproducibly
+        popsize = None if population_size is None else int(population_size)
         self._cma = CMA(mean=mean, sigma=float(sigma0), bounds=np.tile([0.0, 1.0], (d, 1)),
-                        seed=int(seed) % 2**32, population_size=None if population_size is None else int(population_size))
+                        seed=int(seed) % 2**32, population_size=popsize)
         self._pending: np.ndarray | None = None
         self._best = BestTracker(d)
 
@@ -53,14 +55,17 @@ class CmaEs:
         U, self._pending = self._pending, None
         f = np.asarray(f, float).ravel()
         if U is None or f.shape != (len(U),):
-            raise OptimizerError(f"cmaes: tell() needs the f of the last ask ({self._cma.population_size},), got {f.shape}")
+            raise OptimizerError(f"cmaes: tell() needs the f of the last ask "
+                                 f"({self._cma.population_size},), got {f.shape}")
         f = np.where(np.isnan(f), np.inf, f)  # NaN ranks as worst; CMA-ES only uses the ranking
         self._cma.tell(list(zip(U, f)))
         self._best.update(X, f)
 
     @property
     def stop(self) -> str | None:
-        return f"converged: cmaes should_stop() at generation {self._cma.generation}" if self._cma.should_stop() else None
+        if self._cma.should_stop():
+            return f"converged: cmaes should_stop() at generation {self._cma.generation}"
+        return None
 
     @property
     def best(self) -> tuple[np.ndarray, float]:

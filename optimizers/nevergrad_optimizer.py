@@ -36,13 +36,19 @@ class Nevergrad:
         if int(num_workers) < 1:
             raise OptimizerError(f"nevergrad: num_workers must be >= 1, got {num_workers}")
         init = (self.lower + self.upper) / 2 if x0 is None else np.clip(np.asarray(x0, float), self.lower, self.upper)
-        param = ng.p.Array(init=init, lower=self.lower, upper=self.upper)
+        # ng.p.Array(lower=, upper=) reads random_state while building and, finding none, draws a
+        # seed from numpy's global generator; so: sigma first (it adds a sub-parameter), then the
+        # seeded state (propagated to sub-parameters), then the bounds
+        # sigma = range / 6 is what ng.p.Array(lower=, upper=) would set
+        param = ng.p.Array(init=init).set_mutation(sigma=(self.upper - self.lower) / 6)
         param.random_state = np.random.RandomState(int(seed) % 2**32)
+        param.set_bounds(self.lower, self.upper)
         self.num_workers = int(num_workers)
         self._opt = ng.optimizers.registry[name](parametrization=param, budget=None if budget is None else int(budget),
                                                  num_workers=self.num_workers)
         self._pending: list = []
         self._best = BestTracker(self.lower.size)
+        self._worst = -np.inf  # worst finite f told, the stand-in for NaN/inf
 
     def ask(self) -> np.ndarray:
         if self._pending:
@@ -55,8 +61,12 @@ class Nevergrad:
         f = np.asarray(f, float).ravel()
         if not cands or f.shape != (len(cands),):
             raise OptimizerError(f"nevergrad: tell() needs the f of the last ask ({self.num_workers},), got {f.shape}")
-        worst = np.max(f[np.isfinite(f)], initial=np.finfo(float).max / 1e10)  # some methods average losses
-        for cand, value in zip(cands, np.where(np.isfinite(f), f, worst)):
+        # NaN/inf become the worst finite value told so far (1e10 before any): some methods average losses
+        finite = np.isfinite(f)
+        if finite.any():
+            self._worst = max(self._worst, float(np.max(f[finite])))
+        values = np.where(finite, f, self._worst if np.isfinite(self._worst) else 1e10)
+        for cand, value in zip(cands, values):
             self._opt.tell(cand, float(value))
         self._best.update(X, f)
 

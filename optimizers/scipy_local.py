@@ -38,6 +38,8 @@ class _ThreadedMinimize:
         self._best = BestTracker(self.lower.size)
         self._stop: str | None = None
         self._pending: np.ndarray | None = None
+        self._asked: np.ndarray | None = None
+        self._worst = -np.inf
         asks, tells = queue.Queue(maxsize=1), queue.Queue(maxsize=1)
         self._asks, self._tells = asks, tells
         bounds = [(0.0, 1.0)] * self.lower.size
@@ -53,8 +55,9 @@ class _ThreadedMinimize:
 
         def work():
             try:
-                res = minimize(objective, u0, method=method, jac=jac, bounds=bounds, options=options)
-                asks.put(("done", f"converged: scipy {method}: {res.message} (success={res.success}, nit={res.nit})"))
+                res = minimize(objective, u0, method=method, jac=jac or None, bounds=bounds, options=options)
+                outcome = "converged" if res.success else "stopped"
+                asks.put(("done", f"{outcome}: scipy {method}: {res.message} (nit={res.nit}, nfev={res.nfev})"))
             except _Abort:
                 pass
             except Exception as err:  # noqa: BLE001 - re-raised in the caller's thread with context
@@ -82,20 +85,21 @@ class _ThreadedMinimize:
 
     def tell(self, X: np.ndarray, f: np.ndarray) -> None:
         f = np.asarray(f, float).ravel()
-        if getattr(self, "_asked", None) is None or f.shape != (len(self._asked),):
+        if self._asked is None or f.shape != (len(self._asked),):
             raise OptimizerError(f"{self.registered_name}: tell() needs the f of the last ask, got {f.shape}")
         self._best.update(X, f)
-        # non-finite values become the worst finite value seen: scipy needs finite numbers
-        worst = self._best.f if not np.isfinite(f).any() else np.max(f[np.isfinite(f)])
-        worst = max(worst, getattr(self, "_worst", -np.inf)) if np.isfinite(worst) else 1e10
-        self._worst = worst
+        finite = np.isfinite(f)
+        if finite.any():
+            self._worst = max(self._worst, float(np.max(f[finite])))
+        # scipy needs finite numbers: a NaN/inf becomes the worst finite value seen (1e10 before any)
+        f = np.where(finite, f, self._worst if np.isfinite(self._worst) else 1e10)
         self._asked = None
-        self._tells.put(np.where(np.isfinite(f), f, worst))
+        self._tells.put(f)
         self._receive()
 
     def close(self) -> None:
         """Unwind the worker thread (also done when the optimiser is garbage-collected)."""
-        if self._stop is None and self._pending is not None:
+        if getattr(self, "_stop", "") is None:  # the worker is waiting in its objective for a tell
             self._stop = "closed"
             self._tells.put(None)
 
