@@ -1,0 +1,90 @@
+"""Trifocal measurement model: zero residual at the truth, Jacobians against finite differences."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from avio.filter import FilterConfig, _inject, _State, measurement_model
+from avio.geometry import so3_exp
+from avio.measurement import relative_poses, triplet_residuals
+
+from test_filter import make_circle_sequence, perturbed
+
+
+def _triplet(rng, n=3, F=6, noise_px=1.0):
+    fx = np.array([700.0, 720, 710])[:n]
+    fy = np.array([705.0, 715, 718])[:n]
+    cx = np.array([600.0, 610, 605])[:n]
+    cy = np.array([180.0, 185, 190])[:n]
+    Rc = so3_exp(rng.normal(0, 0.05, (3, n, 3)))
+    pc = np.stack([np.zeros((n, 3)), np.array([0.3, 0.05, 1.0]) + rng.normal(0, 0.05, (n, 3)),
+                   np.array([0.6, 0.1, 2.0]) + rng.normal(0, 0.05, (n, 3))])
+    Xw = np.c_[rng.uniform(-12, 12, F), rng.uniform(-3, 3, F), rng.uniform(8, 30, F)]
+    K = np.array([[fx[0], 0, cx[0]], [0, fy[0], cy[0]], [0, 0, 1]])
+    uv = np.zeros((F, 3, 2))
+    for i in range(3):
+        m = ((Xw - pc[i, 0]) @ Rc[i, 0]) @ K.T
+        uv[:, i] = m[:, :2] / m[:, 2:]
+    uv_clean = uv.copy()
+    uv += rng.normal(0, noise_px, uv.shape)
+    return (fx, fy, cx, cy), Rc, pc, uv, uv_clean
+
+
+def test_residuals_vanish_at_the_truth():
+    intr, Rc, pc, _, uv = _triplet(np.random.default_rng(0), n=1, noise_px=0.0)
+    r, _ = triplet_residuals(uv, *relative_poses(Rc, pc), *intr)
+    assert np.abs(r).max() < 1e-6
+
+
+def test_triplet_jacobian_matches_finite_differences():
+    intr, Rc, pc, uv, _ = _triplet(np.random.default_rng(1))
+    R12, t12, R13, t13 = relative_poses(Rc, pc)
+    r, J = triplet_residuals(uv, R12, t12, R13, t13, *intr)
+
+    def f(d):
+        return triplet_residuals(uv, R12 @ so3_exp(d[0:3]), t12 + d[3:6], R13 @ so3_exp(d[6:9]),
+                                 t13 + d[9:12], *intr)[0]
+
+    eps = 1e-6
+    # Innovations r = z - h, so dr/dd = -J.
+    J_fd = np.stack([-(f(eps * e) - f(-eps * e)) / (2 * eps) for e in np.eye(12)], axis=-1)
+    scale = np.abs(J_fd).max(axis=(0, 1, 3), keepdims=True) + 1e-12
+    assert np.abs((J - J_fd) / scale).max() < 1e-5
+
+
+@pytest.mark.parametrize("time_offset", [False, True])
+def test_state_jacobian_matches_finite_differences(time_offset):
+    seq = make_circle_sequence(n_frames=20, pixel_noise_px=1.0)
+    cal = perturbed(seq.truth_calibration, 2, seed=1)
+    if not time_offset:
+        cal.time_offset_s[:] = 0.0
+    rng = np.random.default_rng(0)
+    st = _State(seq, 2, FilterConfig())
+    tr, k = seq.truth, 10
+    st.p = tr.p_world_imu_m[[k, k]] + rng.normal(0, 0.1, (2, 3))
+    st.R = tr.R_world_imu[[k, k]] @ so3_exp(rng.normal(0, 0.01, (2, 3)))
+    st.v = tr.v_world_imu_mps[[k, k]]
+    st.bg = rng.normal(0, 0.01, (2, 3))
+    for i in range(2):
+        st.cp[i] = tr.p_world_imu_m[[k - 2 + i] * 2] + rng.normal(0, 0.1, (2, 3))
+        st.cR[i] = tr.R_world_imu[[k - 2 + i] * 2] @ so3_exp(rng.normal(0, 0.01, (2, 3)))
+    uv = seq.tracks.uv_px[k - 2][seq.tracks.valid[k - 2]][:6]
+    gyro = rng.normal(0, 0.2, (2, 3)) + st.bg
+    r, J, C, _, _ = measurement_model(st, cal, uv, gyro - st.bg, cal.time_offset_s)
+    H = J @ C[:, None]
+
+    def residual(dx):
+        s2 = copy.deepcopy(st)
+        _inject(s2, dx)
+        return measurement_model(s2, cal, uv, gyro - s2.bg, cal.time_offset_s)[0]
+
+    eps = 1e-6
+    H_fd = np.stack([-(residual(eps * np.tile(e, (2, 1))) - residual(-eps * np.tile(e, (2, 1)))) / (2 * eps)
+                     for e in np.eye(27)], axis=-1)
+    scale = np.abs(H_fd).max() + 1e-12
+    pose_cols = np.r_[0:9, 15:27]
+    assert np.abs(H - H_fd)[..., pose_cols].max() / scale < 1e-5
+    # The gyro-bias column goes through the first-order time shift exp((w - b_g) td): exact to O(td).
+    assert np.abs(H - H_fd)[..., 12:15].max() / scale < (1e-3 if time_offset else 1e-9)
+    assert np.all(H[..., 9:12] == 0.0)
