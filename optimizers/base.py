@@ -62,3 +62,21 @@ class BestTracker:
         if f.size and f.min() < self.f:
             i = int(np.argmin(f))
             self.x, self.f = np.array(X[i], float), float(f[i])
+
+
+class WorstFiniteFill:
+    """Replaces NaN/inf values by the worst finite value told so far (1e10 before any).
+
+    For library optimisers that would drop a non-finite trial or average it into their model:
+    as the worst value it still teaches them where not to go.
+    """
+
+    def __init__(self) -> None:
+        self.worst = -np.inf
+
+    def __call__(self, f: np.ndarray) -> np.ndarray:
+        f = np.asarray(f, float)
+        finite = np.isfinite(f)
+        if finite.any():
+            self.worst = max(self.worst, float(np.max(f[finite])))
+        return np.where(finite, f, self.worst if np.isfinite(self.worst) else 1e10)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, check_bounds
+from optimizers.base import BestTracker, OptimizerError, WorstFiniteFill, check_bounds
 from optimizers.registry import register
 
 
@@ -48,7 +48,7 @@ class Nevergrad:
                                                  num_workers=self.num_workers)
         self._pending: list = []
         self._best = BestTracker(self.lower.size)
-        self._worst = -np.inf  # worst finite f told, the stand-in for NaN/inf
+        self._fill = WorstFiniteFill()  # NaN/inf told as the worst finite value
 
     def ask(self) -> np.ndarray:
         if self._pending:
@@ -61,11 +61,7 @@ class Nevergrad:
         f = np.asarray(f, float).ravel()
         if not cands or f.shape != (len(cands),):
             raise OptimizerError(f"nevergrad: tell() needs the f of the last ask ({self.num_workers},), got {f.shape}")
-        # NaN/inf become the worst finite value told so far (1e10 before any): some methods average losses
-        finite = np.isfinite(f)
-        if finite.any():
-            self._worst = max(self._worst, float(np.max(f[finite])))
-        values = np.where(finite, f, self._worst if np.isfinite(self._worst) else 1e10)
+        values = self._fill(f)
         for cand, value in zip(cands, values):
             self._opt.tell(cand, float(value))
         self._best.update(X, f)

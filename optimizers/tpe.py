@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, check_bounds
+from optimizers.base import BestTracker, OptimizerError, WorstFiniteFill, check_bounds
 from optimizers.registry import register
 
 
@@ -46,7 +46,7 @@ class Tpe:
         self.batch_size = int(batch_size)
         self._pending: list = []
         self._best = BestTracker(self.lower.size)
-        self._worst = -np.inf  # worst finite f told, the stand-in for NaN/inf
+        self._fill = WorstFiniteFill()  # NaN/inf told as the worst finite value
 
     def ask(self) -> np.ndarray:
         if self._pending:
@@ -60,12 +60,7 @@ class Tpe:
         f = np.asarray(f, float).ravel()
         if not trials or f.shape != (len(trials),):
             raise OptimizerError(f"tpe: tell() needs the f of the last ask ({self.batch_size},), got {f.shape}")
-        # optuna marks a NaN trial as failed and drops it from the model; as the worst finite value
-        # told so far (1e10 before any) it still teaches TPE where not to go
-        finite = np.isfinite(f)
-        if finite.any():
-            self._worst = max(self._worst, float(np.max(f[finite])))
-        values = np.where(finite, f, self._worst if np.isfinite(self._worst) else 1e10)
+        values = self._fill(f)
         for trial, value in zip(trials, values):
             self._study.tell(trial, float(value))
         self._best.update(X, f)
