@@ -103,9 +103,9 @@ def trajectory_figures(problem: VioRmseProblem, avio: Calibration, label: str, o
         fig, ax = plt.subplots(figsize=(6.5, 5.5))
         gt = sequence.truth.p_world_imu_m
         ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2, label="ground truth")
-        for k, name in enumerate(("VIO reference", f"AVIO ({label})")):
+        for k, (name, style) in enumerate((("VIO reference", "--"), (f"AVIO ({label})", "-"))):
             p = result.p_world_imu_m[k]
-            ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"{name}: RMSE {errors['position_rmse'][k]:.2f} m")
+            ax.plot(p[:, 0], p[:, 1], style, lw=1.2, label=f"{name}: RMSE {errors['position_rmse'][k]:.2f} m")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
