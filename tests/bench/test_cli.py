@@ -70,3 +70,34 @@ def test_readme_plugin_example_is_the_shipped_plugin():
     readme = (ROOT / "README.md").read_text()
     assert (ROOT / "optimizers" / "one_plus_one.py").read_text() in _code_blocks(readme, "python")
     assert (ROOT / "conf" / "optimizer" / "one_plus_one.yaml").read_text() in _code_blocks(readme, "yaml")
+
+
+def _main_exit(argv, capsys):
+    from bench.__main__ import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    out = capsys.readouterr()
+    return exit_info.value.code, out.out + out.err
+
+
+def test_a_missing_data_folder_is_one_message(tmp_path, capsys):
+    code, out = _main_exit(["problem=kitti00", "optimizer=random", f"problem.params.data_dir={tmp_path / 'nowhere'}",
+                            f"hydra.sweep.dir={tmp_path / 'sweep'}"], capsys)
+    assert code == 2 and "nowhere" in out and "Traceback" not in out
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_a_corrupt_data_file_is_one_message_naming_file_and_line(tmp_path, capsys, shared_data):
+    data = tmp_path / "data" / "kitti00"
+    data.mkdir(parents=True)
+    for source in (shared_data / "kitti00").iterdir():
+        (data / source.name).symlink_to(source)
+    gt = data / "KITTI_00_gt.txt"
+    lines = gt.read_text().splitlines()
+    gt.unlink()
+    lines[41] = "1.0 0.0 not-a-number"
+    gt.write_text("\n".join(lines) + "\n")
+    code, out = _main_exit(["problem=kitti00", "optimizer=random", f"problem.params.data_dir={tmp_path / 'data'}",
+                            f"hydra.sweep.dir={tmp_path / 'sweep'}"], capsys)
+    assert code == 2 and "KITTI_00_gt.txt" in out and "42" in out and "Traceback" not in out
