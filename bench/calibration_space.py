@@ -56,10 +56,10 @@ class CalibrationSpace:
     def encode(self, calibration: Calibration) -> np.ndarray:
         """A batch of calibrations → (n, d) points (the inverse of ``decode``)."""
         c = calibration
-        parts = [c.fx_px, c.fy_px, c.cx_px, c.cy_px]
         if self.kind == "paper":
-            parts += list(_euler_near(c.R_cam_imu, self.nominal.R_cam_imu[0]).T) + list(c.p_imu_cam_m.T)
+            parts = list(paper_parameters(c, self.nominal).T)
         else:
+            parts = [c.fx_px, c.fy_px, c.cx_px, c.cy_px]
             r = np.degrees(so3_log(c.R_cam_imu @ self.nominal.R_cam_imu[0].T))
             parts += list(r.T) + list((c.p_imu_cam_m - self.nominal.p_imu_cam_m[0]).T)
         if "td" in self.space.names:
@@ -84,6 +84,14 @@ def _euler_near(R: np.ndarray, R_nominal: np.ndarray) -> np.ndarray:
     distance = np.abs(_wrap_deg(candidates - nominal)).sum(axis=-1)
     chosen = candidates[np.argmin(distance, axis=0), np.arange(len(first))]
     return nominal + _wrap_deg(chosen - nominal)
+
+
+def paper_parameters(calibration: Calibration, nominal: Calibration) -> np.ndarray:
+    """(n, 10) the paper's variables (fx, fy, cx, cy px; roll, pitch, yaw deg; tx, ty, tz m) of a
+    batch of calibrations, the Euler angles on the branch nearest the nominal's."""
+    c = calibration
+    angles = _euler_near(c.R_cam_imu, nominal.R_cam_imu[0])
+    return np.column_stack([c.fx_px, c.fy_px, c.cx_px, c.cy_px, angles, c.p_imu_cam_m])
 
 
 def make_calibration_space(

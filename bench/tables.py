@@ -25,7 +25,7 @@ import pandas as pd
 from avio.metrics import pose_errors
 from avio.reference import PAPER_TABLE1
 from avio.sequence import Calibration
-from bench.calibration_space import make_calibration_space
+from bench.calibration_space import paper_parameters
 from bench.job import build_problem
 from bench.problems.vio import VioRmseProblem, calibration_errors
 from bench.records import RecordError, find_job_dirs, read_record
@@ -69,8 +69,7 @@ def best_calibrations(problem: VioRmseProblem, records: list[dict]) -> dict[str,
 
 def _paper_values(problem: VioRmseProblem, cal: Calibration) -> np.ndarray:
     """(n, 10) calibrations in the paper's variables (fx, fy, cx, cy, roll, pitch, yaw, tx, ty, tz)."""
-    paper = make_calibration_space("paper", problem.sequence.reference_calibration)
-    return paper.encode(cal)
+    return paper_parameters(cal, problem.sequence.reference_calibration)
 
 
 def _iqr(x: np.ndarray, axis=0) -> np.ndarray:
