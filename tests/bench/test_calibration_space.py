@@ -53,3 +53,12 @@ def test_bad_space_names_and_bounds_are_reported():
         make_calibration_space("paper", nominal, bounds={"fz": [0, 1]})
     with pytest.raises(SpaceError, match="variable 'fx': lower bound 750.0 is not below"):
         make_calibration_space("paper", nominal, bounds={"fx": [750, 700]})
+
+
+def test_rectified_reference_leaves_table1_bounds_because_of_gimbal_lock():
+    """0.65 deg of rectification swings ZYX roll from 119.5 to 173 deg (roll + yaw is kept)."""
+    rectified = kitti_2011_10_03_calibration(rectified=True)
+    with pytest.raises(SpaceError, match="variable 'roll': reference 173.0"):
+        make_calibration_space("paper", rectified)
+    local = make_calibration_space("local", rectified)
+    np.testing.assert_allclose(local.space.reference[4:], 0.0, atol=1e-12)
