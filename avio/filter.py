@@ -1,8 +1,14 @@
 """The batched sliding-window trifocal VIO: n error-state Kalman filters in lock-step (PAPER.md §2).
 
 One call of :func:`run` runs one filter per candidate calibration over the same IMU and feature
-tracks. Every array carries the calibration axis first, and the Python loop runs over frames
-only, never over calibrations (DESIGN.md, "Batch first").
+tracks. Every array carries the calibration axis first. The calibration-independent work (IMU
+preintegration, feature selection, process noise) is numpy, once per sequence
+(:func:`prepare`); the filters themselves run in one compiled numba kernel
+(avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
+the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
+(pure numpy reached ~20 evaluations/s at batch 64, the kernel ~50, see
+scripts/bench_filter.py). Each filter is computed alone, so a batch gives the same bits as
+single runs; no fastmath, so results are deterministic.
 
 State (nominal): ``p_world_imu`` (m), ``R_world_imu``, ``v_world_imu`` (m/s), accelerometer and
 gyro biases ``b_a`` (m/s^2), ``b_g`` (rad/s), and two clones of the camera-exposure IMU pose of
@@ -26,7 +32,7 @@ with local rotation errors (``R_true = R exp(dtheta)``).
   Jacobians; features chosen once per sequence by 4x8 bucketing of frame k's image
   (calibration-independent); outliers rejected per filter (avio/outliers.py); then the Kalman
   update in information form, reduced to the 12 relative-pose errors the measurement depends
-  on (see :func:`_update`): a 12x12 solve, never the (4F)x(4F) innovation covariance.
+  on (avio._kernels.update): a 12x12 solve, never the (4F)x(4F) innovation covariance.
 - Standing still: when the median image motion of a triplet's features over two frames is
   below ``stationary_flow_px`` (calibration-free), the trifocal geometry has no baseline and
   says nothing; a zero-velocity pseudo-measurement (``zero_velocity_sigma_mps``) replaces the
@@ -35,9 +41,9 @@ with local rotation errors (``R_true = R exp(dtheta)``).
 - Divergence: a filter whose state or covariance is non-finite, whose largest covariance
   diagonal exceeds ``divergence_max_variance`` (default 1e6, i.e. a 1 km standard deviation) or
   whose speed exceeds ``divergence_max_speed_mps`` (100 m/s) is flagged at that frame and frozen:
-  its estimates stay at the last good frame, its state is reset each frame to that value so the
-  batch arithmetic stays finite; the others carry on. A calibration with non-finite values is
-  flagged at frame 0. :func:`avio.metrics.position_rmse_objective` turns a divergence into a
+  its estimates (and biases) stay at the last good frame, its ``sigma`` reports the initial
+  standard deviations from then on and its update counts are 0; the others carry on. A
+  calibration with non-finite values is flagged at frame 0 and not run. :func:`avio.metrics.position_rmse_objective` turns a divergence into a
   finite penalty.
 """
 
@@ -49,19 +55,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
-from avio.imu_propagation import (
-    preintegrate,
-    process_noise,
-    propagate_preintegrated,
-    so3_exp_fast,
-)
-from avio.measurement import (
-    camera_pose_jacobian,
-    relative_pose_jacobian,
-    relative_poses,
-    triplet_residuals,
-)
-from avio.outliers import feature_innovations, mahalanobis_gate, one_point_ransac
+from avio import _kernels
+from avio.imu_propagation import preintegrate, process_noise
 from avio.sequence import Calibration, Sequence
 
 
@@ -237,7 +232,8 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
 
 
 class _State:
-    """Nominal states and covariances of the n filters (mutable, private to :func:`run`)."""
+    """Initial nominal states and covariances of n filters: truth pose and velocity of frame 0,
+    biases zero, clones at the origin (they are set by the first slides), ``P0`` diagonal."""
 
     def __init__(self, sequence: Sequence, n: int, config: FilterConfig):
         tr = sequence.truth
@@ -255,157 +251,35 @@ class _State:
         self.P0 = np.diag(d**2)
         self.P = np.repeat(self.P0[None], n, axis=0)
 
-    NAMES = ("R", "p", "v", "ba", "bg", "cp", "cR", "P")
-
-    def snapshot(self) -> dict:
-        return {k: getattr(self, k).copy() for k in self.NAMES}
-
-    def restore(self, snap: dict, which: np.ndarray) -> None:
-        """Reset the filters in ``which`` (n,) bool to a snapshot (clone axes come second)."""
-        for k in self.NAMES:
-            a = getattr(self, k)
-            if k in ("cp", "cR"):
-                a[:, which] = snap[k][:, which]
-            else:
-                a[which] = snap[k][which]
-        self.P[which] = self.P0
-
-
-def _shifted_pose(st: _State, omega, td):
-    """Exposure-time IMU pose (p + v td, R exp(w td)) and its (n, 6, 15) Jacobian w.r.t. the core
-    error ``[dp, dtheta, dv, db_a, db_g]``."""
-    E = so3_exp_fast(omega * td[:, None])
-    R = st.R
-    n = len(td)
-    J = np.zeros((n, 6, 15))
-    J[:, 0:3, 0:3] = np.eye(3)
-    J[:, 0:3, 6:9] = td[:, None, None] * np.eye(3)
-    J[:, 3:6, 3:6] = np.swapaxes(E, 1, 2)
-    J[:, 3:6, 12:15] = -td[:, None, None] * np.eye(3)
-    return st.p + st.v * td[:, None], R @ E, J
-
-
-def _slide(st: _State, p_new, R_new, J_new) -> None:
-    """Drop clone k-2, move k-1 down, clone the current exposure pose (error rows J_new @ core)."""
-    st.cp[0], st.cR[0] = st.cp[1], st.cR[1]
-    st.cp[1], st.cR[1] = p_new, R_new
-    P = st.P
-    Pn = P.copy()
-    Pn[:, 15:21, :] = P[:, 21:27, :]
-    Pn[:, :, 15:21] = Pn[:, :, 21:27].copy()
-    new_rows = J_new @ P[:, 0:15, :]  # (n, 6, 27), cross-covariances with the old state
-    new_rows[:, :, 15:21] = new_rows[:, :, 21:27]
-    Pn[:, 21:27, :] = new_rows
-    Pn[:, :, 21:27] = np.swapaxes(new_rows, 1, 2)
-    Pn[:, 21:27, 21:27] = new_rows[:, :, 0:15] @ np.swapaxes(J_new, 1, 2)
-    st.P = Pn
-
-
 def measurement_model(st: "_State", cal: Calibration, uv_px, omega, td):
     """Innovations r (n, F, 4) pixels, their Jacobian J (n, F, 4, 12) w.r.t. the relative-pose
     errors of the triplet and the map C (n, 12, 27) from the error state to those, so that the
     measurement Jacobian is ``H = J C`` (``dr = -H dx``); also t12, t13 (n, 3).
 
-    Chain: state error -> exposure-time IMU poses of images 1, 2, 3 (clones, shifted current
-    pose) -> camera pose errors -> relative-pose errors -> residuals (avio/measurement.py).
+    What the update runs per filter (avio._kernels.measure): state error -> exposure-time IMU
+    poses of images 1, 2, 3 (clones, shifted current pose) -> camera pose errors ->
+    relative-pose errors -> residuals (avio/measurement.py).
     """
-    n = len(td)
-    p3, R3, Jshift = _shifted_pose(st, omega, td)
-    Rci, pic = cal.R_cam_imu, cal.p_imu_cam_m
-    Rci_t = np.swapaxes(Rci, 1, 2)
-    R_imu = np.stack([st.cR[0], st.cR[1], R3])
-    p_imu = np.stack([st.cp[0], st.cp[1], p3])
-    Rc = R_imu @ Rci_t[None]
-    pc = p_imu + (R_imu @ pic[None, :, :, None])[..., 0]
-    R12, t12, R13, t13 = relative_poses(Rc, pc)
-    r, J = triplet_residuals(uv_px, R12, t12, R13, t13, cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px)
-    G = np.zeros((n, 18, 27))
-    G[:, 0:6, 15:21] = camera_pose_jacobian(R_imu[0], Rci, pic)
-    G[:, 6:12, 21:27] = camera_pose_jacobian(R_imu[1], Rci, pic)
-    G[:, 12:18, 0:15] = camera_pose_jacobian(R_imu[2], Rci, pic) @ Jshift
-    C = relative_pose_jacobian(Rc, t12, t13) @ G
-    return r, J, C, t12, t13
-
-
-def _update(st: _State, cal: Calibration, uv_px, valid, omega, td, config: FilterConfig):
-    """One trifocal update of all filters; returns (used, rejected) feature counts (n,).
-
-    The measurement depends on the state only through the 12 relative-pose errors ``C dx``,
-    so the gates and the update work with ``Sigma = C P C^T`` (12x12) and ``J``: the Kalman
-    step is ``P+ = P - P C^T (I + A Sigma)^-1 A C P``, ``dx = P C^T (I + A Sigma)^-1 J^T R^-1 r``
-    with ``A = J^T R^-1 J`` — algebraically the information form
-    ``(P^-1 + H^T R^-1 H)^-1`` with ``H = J C``, at the price of a 12x12 solve.
-    """
-    n = len(td)
-    # Degenerate geometry (a point at the epipole, a wild candidate) gives non-finite values;
-    # they are masked out just below, so the warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        r, J, C, t12, t13 = measurement_model(st, cal, uv_px, omega, td)
-    ok = valid[None, :] & np.all(np.isfinite(r), axis=-1) & np.all(np.isfinite(J), axis=(-1, -2))
-    # Without baseline the epipolar geometry and the transfer are undefined (car standing still).
-    moving = (np.linalg.norm(t12, axis=1) > config.min_parallax_m) & (
-        np.linalg.norm(t13 - t12, axis=1) > config.min_parallax_m)
-    ok &= moving[:, None]
-    r = np.where(ok[..., None], r, 0.0)
-    J = np.where(ok[..., None, None], J, 0.0)
-    PCt = st.P @ np.swapaxes(C, 1, 2)  # (n, 27, 12)
-    Sigma = C @ PCt
-    Sigma = 0.5 * (Sigma + np.swapaxes(Sigma, 1, 2))
-    sigma = np.array([config.epipolar_sigma_px] * 2 + [config.transfer_sigma_px] * 2)
-    inl = ok
-    mode = config.outlier_rejection
-    if mode != "none":
-        JS, z = feature_innovations(r, J, Sigma, sigma)
-    if mode in ("ransac", "both"):
-        inl = one_point_ransac(r, J, JS, z, sigma, inl, config.ransac_threshold_sigma)
-    if mode in ("mahalanobis", "both"):
-        inl = mahalanobis_gate(r, z, inl, config.chi2_threshold)
-    w = inl[..., None] / sigma  # whitening, zero for rejected features
-    Jw = (J * w[..., None]).reshape(n, -1, 12)
-    rw = (r * w).reshape(n, -1)
-    A = np.swapaxes(Jw, 1, 2) @ Jw
-    beta = (np.swapaxes(Jw, 1, 2) @ rw[..., None])[..., 0]
-    X = np.linalg.solve(np.eye(12) + A @ Sigma, np.concatenate([A, beta[..., None]], axis=2))
-    dx = (PCt @ X[:, :, 12:])[..., 0]
-    P = st.P - PCt @ (X[:, :, :12] @ np.swapaxes(PCt, 1, 2))
-    st.P = 0.5 * (P + np.swapaxes(P, 1, 2))
-    _inject(st, dx)
-    return inl.sum(axis=1), ok.sum(axis=1) - inl.sum(axis=1)
+        return _kernels.measure_all(st.R, st.p, st.v, st.cp, st.cR, _f64(omega), _f64(td), *_cal_arrays(cal),
+                                    _f64(uv_px))
 
 
-def _kalman_update(st: _State, Hw, rw) -> None:
-    """Kalman update from whitened innovations rw (n, M) and Jacobians Hw (n, M, 27), in
-    information form: ``P+ = P - P (I + G P)^-1 G P``, ``dx = P (I + G P)^-1 Hw^T rw`` with
-    ``G = Hw^T Hw``."""
-    Gm = np.swapaxes(Hw, 1, 2) @ Hw
-    b = (np.swapaxes(Hw, 1, 2) @ rw[..., None])[..., 0]
-    GP = Gm @ st.P
-    X = np.linalg.solve(np.eye(27) + GP, np.concatenate([GP, b[..., None]], axis=2))
-    dx = (st.P @ X[:, :, 27:])[..., 0]
-    P = st.P - st.P @ X[:, :, :27]
-    st.P = 0.5 * (P + np.swapaxes(P, 1, 2))
-    _inject(st, dx)
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
-def _zero_velocity_update(st: _State, sigma_mps: float) -> None:
-    """Pseudo-measurement v = 0 (the images say the car stands still; the trifocal geometry
-    has no baseline then and says nothing)."""
-    n = st.v.shape[0]
-    Hw = np.zeros((n, 3, 27))
-    Hw[:, :, 6:9] = np.eye(3) / sigma_mps
-    _kalman_update(st, Hw, -st.v / sigma_mps)
+def _cal_arrays(cal: Calibration) -> tuple:
+    return tuple(_f64(getattr(cal, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m"))
+
+
+_MODES = {"none": _kernels.MODE_NONE, "ransac": _kernels.MODE_RANSAC, "mahalanobis": _kernels.MODE_GATE,
+          "both": _kernels.MODE_BOTH}
 
 
 def _inject(st: _State, dx) -> None:
-    """Add the error-state correction to the nominal state (local rotation errors)."""
-    st.p = st.p + dx[:, 0:3]
-    st.R = st.R @ so3_exp_fast(dx[:, 3:6])
-    st.v = st.v + dx[:, 6:9]
-    st.ba = st.ba + dx[:, 9:12]
-    st.bg = st.bg + dx[:, 12:15]
-    for i, o in enumerate((15, 21)):
-        st.cp[i] = st.cp[i] + dx[:, o:o + 3]
-        st.cR[i] = st.cR[i] @ so3_exp_fast(dx[:, o + 3:o + 6])
+    """Add the error-state correction dx (n, 27) to the nominal states (local rotation errors)."""
+    _kernels.inject_all(st.R, st.p, st.v, st.ba, st.bg, st.cp, st.cR, _f64(dx))
 
 
 def _check_input(sequence: Sequence, cal: Calibration) -> None:
@@ -423,7 +297,7 @@ def _check_input(sequence: Sequence, cal: Calibration) -> None:
 
 def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = FilterConfig(),
         prepared: _Prepared | None = None) -> FilterResult:
-    """Run one filter per calibration over ``sequence``, all in one vectorised computation.
+    """Run one filter per calibration over ``sequence``, all in one compiled kernel call.
 
     sequence: IMU, frame times, ground truth (for the initial state only) and tracks.
     calibrations: batch of n candidate calibrations.
@@ -434,65 +308,26 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     prep = prepared if prepared is not None else prepare(sequence, config)
     cal = calibrations
     n, N = len(cal), sequence.n_frames
-    td = np.asarray(cal.time_offset_s, float)
-    g = np.asarray(sequence.gravity_world_mps2, float)
+    c = config
     pre = prep.pre
-    st = _State(sequence, n, config)
-    out_p = np.empty((n, N, 3))
-    out_R = np.empty((n, N, 3, 3))
-    out_v = np.empty((n, N, 3))
-    out_sig = np.empty((n, N, 15))
-    out_ba = np.empty((n, N, 3))
-    out_bg = np.empty((n, N, 3))
-    n_upd = np.zeros((n, N), np.int64)
-    n_out = np.zeros((n, N), np.int64)
-    # A calibration with non-finite values is diverged before it starts; run it on the
-    # reference values so the batch arithmetic stays finite.
+    st = _State(sequence, 1, c)
+    out_p, out_R, out_v = np.empty((n, N, 3)), np.empty((n, N, 3, 3)), np.empty((n, N, 3))
+    out_sig, out_ba, out_bg = np.empty((n, N, 15)), np.empty((n, N, 3)), np.empty((n, N, 3))
+    n_upd, n_out, div_at = np.zeros((n, N), np.int64), np.zeros((n, N), np.int64), np.empty(n, np.int64)
+    # A calibration with non-finite values is diverged before it starts (frame 0).
     frozen = ~np.all(np.isfinite(np.concatenate(
         [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
          cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
-    div_at = np.where(frozen, 0, -1)
-    if np.any(frozen):
-        ref = sequence.reference_calibration.repeat(n)
-        cal = Calibration(**{k: np.where(frozen.reshape((n,) + (1,) * (getattr(cal, k).ndim - 1)),
-                                         getattr(ref, k), getattr(cal, k))
-                             for k in cal.__dataclass_fields__})
-        td = np.asarray(cal.time_offset_s, float)
-    for k in range(N):
-        snap = st.snapshot()
-        if k > 0:
-            st.R, st.v, st.p, Phi = propagate_preintegrated(st.R, st.v, st.p, st.ba, st.bg, g, pre, k)
-            P = st.P.copy()
-            P[:, 0:15, :] = Phi @ st.P[:, 0:15, :]
-            P[:, :, 0:15] = P[:, :, 0:15] @ np.swapaxes(Phi, 1, 2)
-            P[:, 0:15, 0:15] += prep.Qd[k]
-            st.P = P
-        omega = pre.gyro_frame_radps[k][None, :] - st.bg
-        j = prep.triplet_of_frame[k]
-        if k >= 2 and prep.stationary[k] and config.zero_velocity_sigma_mps > 0:
-            _zero_velocity_update(st, config.zero_velocity_sigma_mps)
-        elif k >= 2 and j >= 0:
-            n_upd[:, k], n_out[:, k] = _update(st, cal, prep.uv_px[j], prep.valid[j], omega, td, config)
-        p_new, R_new, J_new = _shifted_pose(st, omega, td)
-        _slide(st, p_new, R_new, J_new)
-        bad = ~(np.all(np.isfinite(st.P), axis=(1, 2)) & np.all(np.isfinite(st.R), axis=(1, 2))
-                & np.all(np.isfinite(st.p), axis=1) & np.all(np.isfinite(st.v), axis=1))
-        diag = np.where(bad[:, None], 0.0, np.diagonal(st.P, axis1=1, axis2=2))
-        bad |= diag.max(axis=1) > config.divergence_max_variance
-        bad |= np.linalg.norm(np.where(bad[:, None], 0.0, st.v), axis=1) > config.divergence_max_speed_mps
-        newly = bad & ~frozen
-        div_at[newly] = k
-        frozen |= bad
-        if np.any(frozen):
-            # Frozen filters keep the state of their last good frame (and so their estimates).
-            st.restore(snap, frozen)
-            n_upd[frozen, k] = 0
-            n_out[frozen, k] = 0
-        out_p[:, k] = st.p
-        out_R[:, k] = st.R
-        out_v[:, k] = st.v
-        out_sig[:, k] = np.sqrt(np.abs(np.diagonal(st.P, axis1=1, axis2=2)[:, :15]))
-        out_ba[:, k] = st.ba
-        out_bg[:, k] = st.bg
-    return FilterResult(out_p, out_R, out_v, frozen.copy(), div_at, n_upd, n_out, out_sig, out_ba, out_bg,
+    sigma = np.array([c.epipolar_sigma_px] * 2 + [c.transfer_sigma_px] * 2)
+    # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
+    # kernel tests for and drops; the floating-point warnings carry no information.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        _kernels.run_filters(
+            st.R[0], st.p[0], st.v[0], st.P0, _f64(sequence.gravity_world_mps2), pre.dR, pre.dv, pre.dp, pre.S, pre.SS,
+            pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
+            prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, sigma, c.min_parallax_m,
+            _MODES[c.outlier_rejection], c.ransac_threshold_sigma, c.chi2_threshold, c.zero_velocity_sigma_mps,
+            c.divergence_max_variance, c.divergence_max_speed_mps,
+            out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at)
+    return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
                         meta={"config": config})

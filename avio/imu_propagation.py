@@ -12,7 +12,9 @@ Two implementations of the same model:
 - :func:`preintegrate` + :func:`propagate_preintegrated` (what the filter uses): the RK4 runs
   once per sequence on the bias-free IMU, vectorised over all frame intervals, together with the
   integrals that give the first-order bias corrections (Forster et al. 2017, "On-manifold
-  preintegration", with RK4 instead of Euler); each filter then applies its own biases.
+  preintegration", with RK4 instead of Euler); each filter then applies its own biases
+  (:func:`propagate_one`, compiled with numba: the filter's kernel calls it per filter and
+  frame).
 - :func:`make_substeps` + :func:`propagate_interval`: RK4 of every filter with its own biases,
   the reference the tests compare the first one against (differences ~|b_g T|^2).
 """
@@ -21,7 +23,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+
+from avio._linalg import matmul, so3_exp
 
 
 class ImuPropagationError(ValueError):
@@ -228,22 +233,6 @@ def process_noise(T_s: float, accel_noise: float, gyro_noise: float, accel_bias_
     return Q
 
 
-def so3_exp_fast(rotvec: np.ndarray) -> np.ndarray:
-    """(n, 3) rotation vectors (rad) -> (n, 3, 3), Rodrigues' formula.
-
-    Hand-written because building a scipy Rotation costs tens of microseconds per call, and
-    the filter calls this a few times per frame; small angles use the Taylor series.
-    """
-    th2 = np.einsum("ni,ni->n", rotvec, rotvec)
-    th = np.sqrt(th2)
-    small = th2 < 1e-12
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / np.where(small, 1.0, th2))
-    K = skew_fast(rotvec)
-    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
-
-
 @dataclass(frozen=True)
 class Preintegrated:
     """Bias-free IMU increments of every frame interval, integrated once per sequence.
@@ -322,34 +311,77 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     )
 
 
+@numba.njit(cache=True, error_model="numpy")
+def propagate_workspace():
+    """Scratch arrays of :func:`propagate_one`."""
+    return (np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3),
+            np.empty(3))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def propagate_one(R, v, p, b_a, b_g, g_world, dR, dv0, dp0, S, SS, Vbg, Pbg, T, R_new, v_new, p_new, Phi, ws):
+    """One filter over one preintegrated interval (rows k of :class:`Preintegrated`: dR, dv0,
+    dp0, S, SS, Vbg, Pbg, T): writes R_new (3, 3), v_new, p_new (3,) and the (15, 15) error
+    transition Phi (ws: :func:`propagate_workspace`). See :func:`propagate_preintegrated`."""
+    E, RdR, M, dv, dp, sb, Delta, Pi = ws
+    for i in range(3):
+        dv[i] = dv0[i] - (S[i, 0] * b_a[0] + S[i, 1] * b_a[1] + S[i, 2] * b_a[2]) \
+            + (Vbg[i, 0] * b_g[0] + Vbg[i, 1] * b_g[1] + Vbg[i, 2] * b_g[2])
+        dp[i] = dp0[i] - (SS[i, 0] * b_a[0] + SS[i, 1] * b_a[1] + SS[i, 2] * b_a[2]) \
+            + (Pbg[i, 0] * b_g[0] + Pbg[i, 1] * b_g[1] + Pbg[i, 2] * b_g[2])
+        sb[i] = S[i, 0] * b_g[0] + S[i, 1] * b_g[1] + S[i, 2] * b_g[2]
+    # dtheta = -dR^T S b_g
+    so3_exp(-(sb[0] * dR[0, 0] + sb[1] * dR[1, 0] + sb[2] * dR[2, 0]),
+            -(sb[0] * dR[0, 1] + sb[1] * dR[1, 1] + sb[2] * dR[2, 1]),
+            -(sb[0] * dR[0, 2] + sb[1] * dR[1, 2] + sb[2] * dR[2, 2]), E)
+    matmul(R, dR, RdR)
+    matmul(RdR, E, R_new)
+    for i in range(3):
+        v_new[i] = v[i] + g_world[i] * T + (R[i, 0] * dv[0] + R[i, 1] * dv[1] + R[i, 2] * dv[2])
+        p_new[i] = p[i] + v[i] * T + 0.5 * g_world[i] * T * T + (R[i, 0] * dp[0] + R[i, 1] * dp[1] + R[i, 2] * dp[2])
+        Delta[i] = v_new[i] - v[i] - g_world[i] * T
+        Pi[i] = p_new[i] - p[i] - v[i] * T - 0.5 * g_world[i] * T * T
+    Phi[:] = 0.0
+    for i in range(15):
+        Phi[i, i] = 1.0
+    for r0, c0, X, sgn in ((0, 9, SS, -1.0), (0, 12, Pbg, 1.0), (6, 9, S, -1.0), (6, 12, Vbg, 1.0)):
+        matmul(R, X, M)
+        for i in range(3):
+            for j in range(3):
+                Phi[r0 + i, c0 + j] = sgn * M[i, j]
+    for r0, w in ((0, Pi), (6, Delta)):
+        # -[w]x R
+        for j in range(3):
+            Phi[r0 + 0, 3 + j] = -(-w[2] * R[1, j] + w[1] * R[2, j])
+            Phi[r0 + 1, 3 + j] = -(w[2] * R[0, j] - w[0] * R[2, j])
+            Phi[r0 + 2, 3 + j] = -(-w[1] * R[0, j] + w[0] * R[1, j])
+    for i in range(3):
+        Phi[i, 6 + i] = T
+        for j in range(3):
+            Phi[3 + i, 3 + j] = dR[j, i]
+            Phi[3 + i, 12 + j] = -(dR[0, i] * S[0, j] + dR[1, i] * S[1, j] + dR[2, i] * S[2, j])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _propagate_all(R, v, p, b_a, b_g, g_world, dR, dv, dp, S, SS, Vbg, Pbg, T):
+    n = R.shape[0]
+    R_new, v_new, p_new, Phi = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 15, 15))
+    ws = propagate_workspace()
+    for i in range(n):
+        propagate_one(R[i], v[i], p[i], b_a[i], b_g[i], g_world, dR, dv, dp, S, SS, Vbg, Pbg, T, R_new[i], v_new[i],
+                      p_new[i], Phi[i], ws)
+    return R_new, v_new, p_new, Phi
+
+
 def propagate_preintegrated(R, v, p, b_a, b_g, g_world, pre: Preintegrated, k: int):
     """Nominal state at frame k from frame k-1 and the preintegrated interval k, with the
     biases applied to first order, and the (n, 15, 15) error transition Phi (same closed form
-    as :func:`propagate_interval`, with ``S = R_0 dS`` etc.).
+    as :func:`propagate_interval`, with ``S = R_0 dS`` etc.); :func:`propagate_one` per filter
+    (what the filter runs).
 
     R (n, 3, 3) ``R_world_imu``; v, p, b_a, b_g (n, 3). The bias corrections are exact to first
     order in the biases (second-order terms are ~|b_g T|^2, below 1e-8 for real IMUs).
     """
-    n = R.shape[0]
-    T = pre.T_s[k]
-    S, SS, Vbg, Pbg = pre.S[k], pre.SS[k], pre.Vbg[k], pre.Pbg[k]
-    dv = pre.dv[k] - b_a @ S.T + b_g @ Vbg.T
-    dp = pre.dp[k] - b_a @ SS.T + b_g @ Pbg.T
-    dth = -(b_g @ S.T) @ pre.dR[k]  # -dR^T S b_g, row-vector form
-    R_new = R @ pre.dR[k] @ so3_exp_fast(dth)
-    v_new = v + g_world * T + np.einsum("nij,nj->ni", R, dv)
-    p_new = p + v * T + 0.5 * g_world * T * T + np.einsum("nij,nj->ni", R, dp)
-    Phi = np.broadcast_to(np.eye(15), (n, 15, 15)).copy()
-    Delta = v_new - v - g_world * T
-    Pi = p_new - p - v * T - 0.5 * g_world * T * T
-    RS = R @ S
-    Phi[:, 0:3, 3:6] = -skew_fast(Pi) @ R
-    Phi[:, 0:3, 6:9] = T * np.eye(3)
-    Phi[:, 0:3, 9:12] = -R @ SS
-    Phi[:, 0:3, 12:15] = R @ Pbg
-    Phi[:, 3:6, 3:6] = pre.dR[k].T
-    Phi[:, 3:6, 12:15] = -pre.dR[k].T @ S
-    Phi[:, 6:9, 3:6] = -skew_fast(Delta) @ R
-    Phi[:, 6:9, 9:12] = -RS
-    Phi[:, 6:9, 12:15] = R @ Vbg
-    return R_new, v_new, p_new, Phi
+    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    return _propagate_all(f(R), f(v), f(p), f(b_a), f(b_g), f(g_world), pre.dR[k], pre.dv[k], pre.dp[k], pre.S[k],
+                          pre.SS[k], pre.Vbg[k], pre.Pbg[k], float(pre.T_s[k]))

@@ -17,136 +17,198 @@ maps camera-j vectors into camera 1, ``t1j = R_world_cam1^T (p_world_camj - p_wo
 is camera j's origin in camera 1.
 
 Jacobians are taken with respect to the 12 relative-pose perturbations
-``[psi12, dt12, psi13, dt13]`` with ``R1j <- R1j exp(psi1j)``, ``t1j <- t1j + dt1j``, and chained
-to the filter's 27-dim error state by the per-filter matrix of :func:`relative_pose_jacobian`.
-Shapes: n filters (calibrations), F features.
+``[psi12, dt12, psi13, dt13]`` with ``R1j <- R1j exp(psi1j)``, ``t1j <- t1j + dt1j``; the filter
+(avio/_kernels.py) chains them to its 27-dim error state.
+
+The per-feature arithmetic is compiled with numba (``cache=True``, no fastmath, so results are
+deterministic): the filter calls :func:`feature_residuals` for every feature of every filter
+of every frame, where numpy's per-call overhead on (n, F, 3) arrays cost more than the maths.
+Vectors are passed as 3-tuples (values, no allocation). Shapes: n filters, F features.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-
-from avio.imu_propagation import skew_fast
 
 
 class MeasurementError(ValueError):
     """Bad input to the measurement model; the message names what and where."""
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    # Component-wise cross product: np.cross re-checks and moves axes on every call, which
-    # dominates for the (n, F, 3) arrays of the update.
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    p = a * b
-    return p[..., 0] + p[..., 1] + p[..., 2]
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-# Batched matmul rather than einsum: einsum does not use BLAS-like kernels for these
-# (n, F, 3) x (n, 3, 3) contractions and is ~15x slower here.
-def _rot(R: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """R (n, 3, 3) applied to x (n, F, 3)."""
-    return x @ np.swapaxes(R, 1, 2)
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def rot(R, x):
+    """R (3, 3) array applied to the 3-tuple x."""
+    return (R[0, 0] * x[0] + R[0, 1] * x[1] + R[0, 2] * x[2],
+            R[1, 0] * x[0] + R[1, 1] * x[1] + R[1, 2] * x[2],
+            R[2, 0] * x[0] + R[2, 1] * x[1] + R[2, 2] * x[2])
 
 
-def _rot_t(R: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """R^T (n, 3, 3) applied to x (n, F, 3)."""
-    return x @ R
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def rot_t(R, x):
+    """R^T applied to the 3-tuple x."""
+    return (R[0, 0] * x[0] + R[1, 0] * x[1] + R[2, 0] * x[2],
+            R[0, 1] * x[0] + R[1, 1] * x[1] + R[2, 1] * x[2],
+            R[0, 2] * x[0] + R[1, 2] * x[1] + R[2, 2] * x[2])
 
 
-def normalised_points(uv_px: np.ndarray, fx, fy, cx, cy) -> np.ndarray:
-    """Pixels (F, 2) shared by the batch -> (n, F, 3) homogeneous ``K^-1 m`` of each filter."""
-    n = len(fx)
-    x = np.empty((n, uv_px.shape[0], 3))
-    x[..., 0] = (uv_px[None, :, 0] - cx[:, None]) / fx[:, None]
-    x[..., 1] = (uv_px[None, :, 1] - cy[:, None]) / fy[:, None]
-    x[..., 2] = 1.0
-    return x
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _axpy(a, x, b, y):
+    """a x + b y for scalars a, b and 3-tuples x, y."""
+    return (a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2])
 
 
-def epipolar_sampson(R_ab, t_ab, xa, xb, fx, fy):
-    """Sampson distance (pixels) of ``xb^T R_ab^T [t_ab]x xa = 0`` and its gradient.
+@numba.njit(cache=True, error_model="numpy")
+def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
+    """Sampson distance (pixels) of ``xb^T R_ab^T [t]x xa = 0`` and its gradient, one feature.
 
-    R_ab (n, 3, 3), t_ab (n, 3): pose of camera b in camera a; xa, xb (n, F, 3) normalised
-    homogeneous points; fx, fy (n,) pixels. Returns ``r (n, F)``, ``g_psi (n, F, 3)``,
-    ``g_t (n, F, 3)`` (derivatives w.r.t. ``R_ab <- R_ab exp(psi)``, ``t_ab <- t_ab + dt``) and
-    ``w = R_ab^T (t_ab x xa)`` (n, F, 3), the epipolar line in normalised coordinates of b.
+    R_ab (3, 3), t (3-tuple): pose of camera b in camera a; xa, xb normalised homogeneous
+    points (3-tuples); fx, fy pixels. Returns ``r``, ``g_psi``, ``g_t`` (derivatives w.r.t.
+    ``R_ab <- R_ab exp(psi)``, ``t <- t + dt``) and ``w = R_ab^T (t x xa)``, the epipolar line
+    in normalised coordinates of b.
     """
-    t = np.broadcast_to(t_ab[:, None, :], xa.shape)
-    c = _cross(t, xa)
-    Rxb = _rot(R_ab, xb)
-    e = _dot(Rxb, c)
-    w = _rot_t(R_ab, c)
-    u = _cross(Rxb, t)
-    ifx, ify = (1.0 / fx)[:, None], (1.0 / fy)[:, None]
-    gam = np.stack([w[..., 0] * ifx * ifx, w[..., 1] * ify * ify, np.zeros_like(e)], axis=-1)
-    eta = np.stack([u[..., 0] * ifx * ifx, u[..., 1] * ify * ify, np.zeros_like(e)], axis=-1)
-    s = np.sqrt((w[..., 0] * ifx) ** 2 + (w[..., 1] * ify) ** 2 + (u[..., 0] * ifx) ** 2
-                + (u[..., 1] * ify) ** 2)
-    r = e / s
-    de_psi = _cross(xb, w)
-    de_t = _cross(xa, Rxb)
-    ds_psi = (_cross(gam, w) + _cross(xb, _rot_t(R_ab, _cross(t, eta)))) / s[..., None]
-    ds_t = (_cross(xa, _rot(R_ab, gam)) + _cross(eta, Rxb)) / s[..., None]
-    g_psi = (de_psi - r[..., None] * ds_psi) / s[..., None]
-    g_t = (de_t - r[..., None] * ds_t) / s[..., None]
+    c = cross(t, xa)
+    Rxb = rot(R_ab, xb)
+    e = dot(Rxb, c)
+    w = rot_t(R_ab, c)
+    u = cross(Rxb, t)
+    ifx, ify = 1.0 / fx, 1.0 / fy
+    gam = (w[0] * ifx * ifx, w[1] * ify * ify, 0.0)
+    eta = (u[0] * ifx * ifx, u[1] * ify * ify, 0.0)
+    s = np.sqrt((w[0] * ifx) ** 2 + (w[1] * ify) ** 2 + (u[0] * ifx) ** 2 + (u[1] * ify) ** 2)
+    i_s = 1.0 / s
+    r = e * i_s
+    de_psi = cross(xb, w)
+    de_t = cross(xa, Rxb)
+    a1, a2 = cross(gam, w), cross(xb, rot_t(R_ab, cross(t, eta)))
+    b1, b2 = cross(xa, rot(R_ab, gam)), cross(eta, Rxb)
+    # g = (de - r ds) / s with ds = (a1 + a2) / s (psi) or (b1 + b2) / s (t).
+    ri = r * i_s
+    g_psi = ((de_psi[0] - ri * (a1[0] + a2[0])) * i_s, (de_psi[1] - ri * (a1[1] + a2[1])) * i_s,
+             (de_psi[2] - ri * (a1[2] + a2[2])) * i_s)
+    g_t = ((de_t[0] - ri * (b1[0] + b2[0])) * i_s, (de_t[1] - ri * (b1[1] + b2[1])) * i_s,
+           (de_t[2] - ri * (b1[2] + b2[2])) * i_s)
     return r, g_psi, g_t, w
 
 
-def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy):
-    """Point transfer 1→3 (pixels) and its Jacobian w.r.t. ``[psi12, dt12, psi13, dt13]``.
+@numba.njit(cache=True, error_model="numpy")
+def _transfer_grads(y, R12, l_n, w12, x1, x20, x21, a, ia):
+    # d(y·lam)/d psi12 and / d t12 (lam = R12 l_n; PAPER.md closed form, differentiated).
+    yt = rot_t(R12, y)
+    z = (-yt[1] * ia + x21 * yt[2] * ia, a * yt[0] - a * x20 * yt[2], 0.0)  # L^T yt
+    g1, g2 = cross(l_n, yt), cross(z, w12)
+    return (g1[0] + g2[0], g1[1] + g2[1], g1[2] + g2[2]), cross(x1, rot(R12, z))
 
-    x1, x2 (n, F, 3) normalised points in images 1, 2; w12 (n, F, 3) the epipolar line of x1
-    in image 2 (normalised, from :func:`epipolar_sampson`). The perpendicular through m2 is
-    taken in pixels (as the paper's point–line–point transfer), then mapped to normalised
-    coordinates: ``l_n = K^T l_px = (a w1, -w0 / a, -a x2_0 w1 + x2_1 w0 / a)``, ``a = fx/fy``.
-    Returns ``pred (n, F, 2)`` pixels and ``J (n, F, 2, 12)``.
+
+@numba.njit(cache=True, error_model="numpy")
+def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
+    """Point transfer 1→3 (pixels) of one feature; writes its Jacobian w.r.t.
+    ``[psi12, dt12, psi13, dt13]`` into J (2, 12) and returns ``(u, v)``.
+
+    x1, x2 normalised points in images 1, 2; w12 the epipolar line of x1 in image 2
+    (normalised, from :func:`epipolar_sampson`). The perpendicular through m2 is taken in
+    pixels (as the paper's point–line–point transfer), then mapped to normalised coordinates:
+    ``l_n = K^T l_px = (a w1, -w0 / a, -a x2_0 w1 + x2_1 w0 / a)``, ``a = fx/fy``.
     """
-    a = (fx / fy)[:, None]
-    w0, w1 = w12[..., 0], w12[..., 1]
-    x20, x21 = x2[..., 0], x2[..., 1]
-    l_n = np.stack([a * w1, -w0 / a, -a * x20 * w1 + x21 * w0 / a], axis=-1)
-    lam = _rot(R12, l_n)  # R12 l_n: P2 = [R12^T | -R12^T t12] makes l·a4 = -(R12 l)·t12
-    t12b = np.broadcast_to(t12[:, None, :], x1.shape)
-    t13b = np.broadcast_to(t13[:, None, :], x1.shape)
-    s1 = _dot(lam, t12b)
-    s2 = _dot(lam, x1)
-    Y = s1[..., None] * x1 - s2[..., None] * t13b
-    X = _rot_t(R13, Y)
+    a = fx / fy
+    ia = 1.0 / a
+    w0, w1 = w12[0], w12[1]
+    x20, x21 = x2[0], x2[1]
+    l_n = (a * w1, -w0 * ia, -a * x20 * w1 + x21 * w0 * ia)
+    lam = rot(R12, l_n)  # R12 l_n: P2 = [R12^T | -R12^T t12] makes l·a4 = -(R12 l)·t12
+    s1 = dot(lam, t12)
+    s2 = dot(lam, x1)
+    X = rot_t(R13, _axpy(s1, x1, -s2, t13))
+    s1_psi, s1_t = _transfer_grads(t12, R12, l_n, w12, x1, x20, x21, a, ia)
+    s1_t = (s1_t[0] + lam[0], s1_t[1] + lam[1], s1_t[2] + lam[2])
+    s2_psi, s2_t = _transfer_grads(x1, R12, l_n, w12, x1, x20, x21, a, ia)
+    iX2 = 1.0 / X[2]
+    fs = (fx, fy)
+    for i in range(2):
+        # Row i of Jp = d(pixel_i)/dX: (f iX2 e_i - f X_i iX2^2 e_2).
+        jp = (fs[i] * iX2 if i == 0 else 0.0, fs[i] * iX2 if i == 1 else 0.0, -fs[i] * X[i] * iX2 * iX2)
+        jpr = rot(R13, jp)  # row i of Jp R13^T
+        q1, q2 = dot(jpr, x1), dot(jpr, t13)
+        jx = cross(jp, X)  # row i of Jp [X]x
+        for c in range(3):
+            J[i, c] = q1 * s1_psi[c] - q2 * s2_psi[c]
+            J[i, 3 + c] = q1 * s1_t[c] - q2 * s2_t[c]
+            J[i, 6 + c] = jx[c]
+            J[i, 9 + c] = -s2 * jpr[c]
+    return fx * X[0] * iX2 + cx, fy * X[1] * iX2 + cy
 
-    def grads(y):
-        # d(y·lam)/d psi12 and / d t12 for y (n, F, 3) (PAPER.md closed form, differentiated).
-        yt = _rot_t(R12, y)
-        z = np.stack([-yt[..., 1] / a + x21 * yt[..., 2] / a, a * yt[..., 0] - a * x20 * yt[..., 2],
-                      np.zeros_like(s1)], axis=-1)  # L^T yt
-        return _cross(l_n, yt) + _cross(z, w12), _cross(x1, _rot(R12, z))
 
-    s1_psi, s1_t = grads(t12b)
-    s1_t = s1_t + lam
-    s2_psi, s2_t = grads(x1)
-    iX2 = 1.0 / X[..., 2]
-    fxb, fyb = fx[:, None], fy[:, None]
-    pred = np.stack([fxb * X[..., 0] * iX2 + cx[:, None], fyb * X[..., 1] * iX2 + cy[:, None]], axis=-1)
-    zero = np.zeros_like(iX2)
-    Jp = np.stack([np.stack([fxb * iX2, zero, -fxb * X[..., 0] * iX2 * iX2], axis=-1),
-                   np.stack([zero, fyb * iX2, -fyb * X[..., 1] * iX2 * iX2], axis=-1)], axis=-2)
-    JpR = Jp @ np.swapaxes(R13, 1, 2)[:, None]  # Jp R13^T, (n, F, 2, 3)
-    q1 = (JpR @ x1[..., None])[..., 0]
-    q2 = (JpR @ t13b[..., None])[..., 0]
-    J = np.empty(x1.shape[:2] + (2, 12))
-    J[..., 0:3] = q1[..., None] * s1_psi[..., None, :] - q2[..., None] * s2_psi[..., None, :]
-    J[..., 3:6] = q1[..., None] * s1_t[..., None, :] - q2[..., None] * s2_t[..., None, :]
-    J[..., 6:9] = Jp @ skew_fast(X)
-    J[..., 9:12] = -s2[..., None, None] * JpR
-    return pred, J
+@numba.njit(cache=True, error_model="numpy")
+def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J):
+    """Innovations ``r = z - h`` (4,) pixels and Jacobian ``J = dh/d[psi12, dt12, psi13, dt13]``
+    (4, 12) of one feature (written into r, J), so that ``dr = -J d``, the Kalman convention.
+
+    uv (3, 2) pixels in images 1, 2, 3; R12, R13, R23 (3, 3) and t12, t13, t23 (3-tuples) the
+    relative poses (``R23 = R12^T R13``, ``t23 = R12^T (t13 - t12)``). The epipolar
+    measurements are ``z = 0`` with ``h`` the Sampson distance; the transfer is ``z = m3``.
+    Pair 2–3 is chained to camera 1: ``psi23 = psi13 - R23^T psi12``,
+    ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``.
+    """
+    ifx, ify = 1.0 / fx, 1.0 / fy
+    x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)
+    x2 = ((uv[1, 0] - cx) * ifx, (uv[1, 1] - cy) * ify, 1.0)
+    x3 = ((uv[2, 0] - cx) * ifx, (uv[2, 1] - cy) * ify, 1.0)
+    h0, gp0, gt0, w12 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
+    h1, gp1, gt1, _ = epipolar_sampson(R23, t23, x2, x3, fx, fy)
+    r[0], r[1] = -h0, -h1
+    Rg = rot(R23, gp1)
+    gx = cross(gt1, t23)
+    R12g = rot(R12, gt1)
+    for c in range(3):
+        J[0, c], J[0, 3 + c] = gp0[c], gt0[c]
+        J[0, 6 + c], J[0, 9 + c] = 0.0, 0.0
+        J[1, c] = -Rg[c] + gx[c]
+        J[1, 3 + c] = -R12g[c]
+        J[1, 6 + c] = gp1[c]
+        J[1, 9 + c] = R12g[c]
+    u, v = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J[2:4])
+    r[2], r[3] = uv[2, 0] - u, uv[2, 1] - v
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J):
+    for i in range(R12.shape[0]):
+        R23 = np.empty((3, 3))
+        for a in range(3):
+            for b in range(3):
+                R23[a, b] = R12[i, 0, a] * R13[i, 0, b] + R12[i, 1, a] * R13[i, 1, b] + R12[i, 2, a] * R13[i, 2, b]
+        d = t13[i] - t12[i]
+        t23 = rot_t(R12[i], (d[0], d[1], d[2]))
+        a12 = (t12[i, 0], t12[i, 1], t12[i, 2])
+        a13 = (t13[i, 0], t13[i, 1], t13[i, 2])
+        for f in range(uv_px.shape[0]):
+            feature_residuals(uv_px[f], R12[i], a12, R13[i], a13, R23, t23, fx[i], fy[i], cx[i], cy[i],
+                              r[i, f], J[i, f])
+
+
+def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy):
+    """Innovations (n, F, 4) pixels and Jacobians (n, F, 4, 12) of F features (uv_px (F, 3, 2),
+    shared by the batch) for n filters' relative poses R12, R13 (n, 3, 3), t12, t13 (n, 3) and
+    intrinsics (n,); :func:`feature_residuals` per feature (what the filter's update runs)."""
+    if uv_px.ndim != 3 or uv_px.shape[1:] != (3, 2):
+        raise MeasurementError(f"triplet_residuals: uv_px must be (F, 3, 2) pixels, got {uv_px.shape}")
+    n, F = R12.shape[0], uv_px.shape[0]
+    r = np.empty((n, F, 4))
+    J = np.empty((n, F, 4, 12))
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    _triplet_residuals(f64(uv_px), f64(R12), f64(t12), f64(R13), f64(t13), f64(fx), f64(fy), f64(cx), f64(cy),
+                       r, J)
+    return r, J
 
 
 def relative_poses(Rc, pc):
@@ -159,75 +221,3 @@ def relative_poses(Rc, pc):
     t12 = (R1t @ (pc[1] - pc[0])[..., None])[..., 0]
     t13 = (R1t @ (pc[2] - pc[0])[..., None])[..., 0]
     return R12, t12, R13, t13
-
-
-def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy):
-    """Innovations ``r = z - h`` (n, F, 4) pixels and Jacobians ``J = dh/d[psi12, dt12, psi13, dt13]``
-    (n, F, 4, 12), so that ``dr = -J d``, the Kalman convention.
-
-    The epipolar measurements are ``z = 0`` with ``h`` the Sampson distance; the transfer is
-    ``z = m3`` with ``h`` the transferred point. uv_px (F, 3, 2) pixels of the features in
-    images 1, 2, 3, shared by the batch.
-    """
-    if uv_px.ndim != 3 or uv_px.shape[1:] != (3, 2):
-        raise MeasurementError(f"triplet_residuals: uv_px must be (F, 3, 2) pixels, got {uv_px.shape}")
-    x1 = normalised_points(uv_px[:, 0], fx, fy, cx, cy)
-    x2 = normalised_points(uv_px[:, 1], fx, fy, cx, cy)
-    x3 = normalised_points(uv_px[:, 2], fx, fy, cx, cy)
-    n, F = x1.shape[:2]
-    r = np.empty((n, F, 4))
-    J = np.zeros((n, F, 4, 12))
-    # Pair 2–3 expressed through the relative poses to camera 1:
-    # R23 = R12^T R13, t23 = R12^T (t13 - t12); psi23 = psi13 - R23^T psi12,
-    # dt23 = [t23]x psi12 + R12^T (dt13 - dt12).
-    R23 = np.swapaxes(R12, 1, 2) @ R13
-    t23 = (np.swapaxes(R12, 1, 2) @ (t13 - t12)[..., None])[..., 0]
-    # Both pairs in one call (stacked on the batch axis): half the numpy calls.
-    h, gp, gt, w = epipolar_sampson(np.concatenate([R12, R23]), np.concatenate([t12, t23]),
-                                    np.concatenate([x1, x2]), np.concatenate([x2, x3]),
-                                    np.concatenate([fx, fx]), np.concatenate([fy, fy]))
-    r[..., 0], r[..., 1] = -h[:n], -h[n:]
-    J[..., 0, 0:3], J[..., 0, 3:6], w12 = gp[:n], gt[:n], w[:n]
-    g_psi, g_t = gp[n:], gt[n:]
-    J[..., 1, 0:3] = -_rot(R23, g_psi) + _cross(g_t, np.broadcast_to(t23[:, None, :], g_t.shape))
-    R12g = _rot(R12, g_t)
-    J[..., 1, 3:6] = -R12g
-    J[..., 1, 6:9] = g_psi
-    J[..., 1, 9:12] = R12g
-    pred, Jt = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy)
-    r[..., 2:4] = uv_px[None, :, 2, :] - pred
-    J[..., 2:4, :] = Jt
-    return r, J
-
-
-def camera_pose_jacobian(R_world_imu, R_cam_imu, p_imu_cam):
-    """(n, 6, 6) map from an IMU pose error ``[dp, dtheta]`` to the camera pose error
-    ``[dp_cam, phi]`` (``R_world_cam <- R_world_cam exp(phi)``):
-    ``phi = R_cam_imu dtheta``, ``dp_cam = dp - R_world_imu [p_imu_cam]x dtheta``."""
-    n = R_cam_imu.shape[0]
-    M = np.zeros((n, 6, 6))
-    M[:, 0:3, 0:3] = np.eye(3)
-    M[:, 0:3, 3:6] = -R_world_imu @ skew_fast(p_imu_cam)
-    M[:, 3:6, 3:6] = R_cam_imu
-    return M
-
-
-def relative_pose_jacobian(Rc, t12, t13):
-    """(n, 12, 18) map from the camera pose errors ``[dp_cam_i, phi_i]`` (i = 1, 2, 3, as
-    produced by :func:`camera_pose_jacobian`, composed by the caller) to
-    ``[psi12, dt12, psi13, dt13]``:
-    ``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``.
-
-    Rc (3, n, 3, 3) camera rotations ``R_world_cam`` of images 1, 2, 3.
-    """
-    n = Rc.shape[1]
-    D = np.zeros((n, 12, 18))
-    R1t = np.swapaxes(Rc[0], 1, 2)
-    for j, (row, t1j) in enumerate(((0, t12), (6, t13)), start=1):
-        R1jt = np.swapaxes(R1t @ Rc[j], 1, 2)
-        D[:, row:row + 3, 6 * j + 3:6 * j + 6] = np.eye(3)
-        D[:, row:row + 3, 3:6] = -R1jt
-        D[:, row + 3:row + 6, 3:6] = skew_fast(t1j)
-        D[:, row + 3:row + 6, 6 * j:6 * j + 3] = R1t
-        D[:, row + 3:row + 6, 0:3] = -R1t
-    return D

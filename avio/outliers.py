@@ -12,71 +12,134 @@ two Sampson distances and the 2-D transfer error, pixels) and decide per filter:
   feature is an inlier when each of its residuals is within ``threshold_sigma`` standard
   deviations of measurement noise. The hypothesis with most inliers wins (ties: the first).
 
-Shapes: r (n, F, 4), H (n, F, 4, d), P (n, d, d) the covariance of the d parameters H
-differentiates against, sigma (4,), valid (n, F).
+Compiled with numba (``cache=True``, no fastmath): the filter's update kernel
+(avio/_kernels.py) calls these once per filter and frame. Shapes (one filter): r (F, 4),
+H (F, 4, d), P (d, d) the covariance of the d parameters H differentiates against,
+sigma (4,), valid (F,) bool.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 
-class OutlierError(ValueError):
-    """Bad input to outlier rejection; the message names what."""
-
-
-def spd_solve_small(S: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve ``S z = r`` for many small SPD matrices S (..., m, m), r (..., m) by an unrolled
-    Cholesky factorisation.
-
-    Hand-written because numpy's batched solve calls LAPACK once per 4x4 matrix, which costs
-    more than the arithmetic for the thousands of per-feature systems of one frame.
-    """
-    m = S.shape[-1]
-    L = [[None] * m for _ in range(m)]
+@numba.njit(cache=True, error_model="numpy")
+def _cholesky(S, L):
+    """Lower Cholesky factor L of the SPD matrix S (only its lower triangle is read); a pivot
+    below 1e-300 is clamped, so a zero row gives zeros rather than NaN."""
+    m = S.shape[0]
     for j in range(m):
-        d = S[..., j, j] - sum(L[j][k] * L[j][k] for k in range(j))
-        L[j][j] = np.sqrt(np.maximum(d, 1e-300))
+        s = S[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        L[j, j] = np.sqrt(max(s, 1e-300))
+        inv = 1.0 / L[j, j]
         for i in range(j + 1, m):
-            L[i][j] = (S[..., i, j] - sum(L[i][k] * L[j][k] for k in range(j))) / L[j][j]
-    y = [None] * m
-    for i in range(m):
-        y[i] = (r[..., i] - sum(L[i][k] * y[k] for k in range(i))) / L[i][i]
-    z = [None] * m
-    for i in reversed(range(m)):
-        z[i] = (y[i] - sum(L[k][i] * z[k] for k in range(i + 1, m))) / L[i][i]
-    return np.stack(z, axis=-1)
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s * inv
+        for i in range(j):
+            L[i, j] = 0.0
 
 
-def feature_innovations(r, H, P, sigma):
-    """Per-feature ``HP = H_j P`` (n, F, 4, d) and ``z = S_j^-1 r_j`` (n, F, 4) with
-    ``S_j = H_j P H_j^T + diag(sigma^2)``; shared by both tests."""
-    n, F, m, d = H.shape
-    HP = (H.reshape(n, F * m, d) @ P).reshape(n, F, m, d)
-    S = HP @ np.swapaxes(H, -1, -2) + np.diag(sigma**2)
-    return HP, spd_solve_small(S, r)
+@numba.njit(cache=True, error_model="numpy")
+def feature_innovations(r, H, P, sigma, B, z):
+    """Per-feature ``B_j = H_j L`` (F, 4, d) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``)
+    and ``z_j = S_j^-1 r_j`` (F, 4) with ``S_j = H_j P H_j^T + diag(sigma^2) = B_j B_j^T +
+    diag(sigma^2)``, written into B and z; shared by both tests. Through L the products cost
+    half of ``H_j P`` (L is triangular).
+    """
+    F, m, d = H.shape
+    Lp = np.empty((d, d))
+    _cholesky(P, Lp)
+    S = np.empty((m, m))
+    L = np.empty((m, m))
+    y = np.empty(m)
+    for f in range(F):
+        for a in range(m):
+            for c in range(d):
+                B[f, a, c] = 0.0
+            for b in range(d):
+                h = H[f, a, b]
+                if h != 0.0:
+                    for c in range(b + 1):
+                        B[f, a, c] += h * Lp[b, c]
+        for a in range(m):
+            for b in range(a + 1):
+                acc = 0.0
+                for c in range(d):
+                    acc += B[f, a, c] * B[f, b, c]
+                S[a, b] = acc
+            S[a, a] += sigma[a] * sigma[a]
+        _cholesky(S, L)
+        for i in range(m):
+            s = r[f, i]
+            for k in range(i):
+                s -= L[i, k] * y[k]
+            y[i] = s / L[i, i]
+        for i in range(m - 1, -1, -1):
+            s = y[i]
+            for k in range(i + 1, m):
+                s -= L[k, i] * z[f, k]
+            z[f, i] = s / L[i, i]
 
 
-def mahalanobis_gate(r, z, valid, chi2_threshold: float):
-    """(n, F) True where the feature passes ``r^T S^-1 r <= chi2_threshold`` (and is valid);
+@numba.njit(cache=True, error_model="numpy")
+def mahalanobis_gate(r, z, valid, chi2_threshold, out):
+    """out (F,) True where the feature passes ``r^T S^-1 r <= chi2_threshold`` (and is valid);
     z from :func:`feature_innovations`."""
-    d2 = (r * z).sum(axis=-1)
-    return valid & (d2 <= chi2_threshold)
+    for f in range(r.shape[0]):
+        d2 = 0.0
+        for a in range(r.shape[1]):
+            d2 += r[f, a] * z[f, a]
+        out[f] = valid[f] and d2 <= chi2_threshold
 
 
-def one_point_ransac(r, H, HP, z, sigma, valid, threshold_sigma: float):
-    """(n, F) low-innovation inliers of the best 1-point hypothesis (see module docstring);
-    HP, z from :func:`feature_innovations`."""
-    if r.ndim != 3 or r.shape[-1] != len(sigma):
-        raise OutlierError(f"residuals must be (n, F, {len(sigma)}), got {r.shape}")
-    n, F, m = r.shape
-    # Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h, (n, F, d); then every
-    # feature's residual moves by H_j dx_h.
-    dx = (z[:, :, None, :] @ HP)[:, :, 0, :]
-    moved = H.reshape(n, F * m, -1) @ np.swapaxes(dx, 1, 2)  # (n, (j, a), h)
-    predicted = r.reshape(n, F * m, 1) - moved
-    ok = np.abs(predicted) <= (threshold_sigma * np.tile(sigma, F))[None, :, None]
-    inlier = ok.reshape(n, F, m, F).all(axis=2) & valid[:, :, None]  # (n, j, h)
-    count = np.where(valid, inlier.sum(axis=1), -1)
-    best = np.argmax(count, axis=1)
-    return inlier[np.arange(n), :, best] & valid
+@numba.njit(cache=True, error_model="numpy")
+def one_point_ransac(r, B, z, sigma, valid, threshold_sigma, out):
+    """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
+    B, z from :func:`feature_innovations`."""
+    F, m, d = B.shape
+    # Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h = L y_h with y_h = B_h^T z_h
+    # (columns of Y, (d, F)); every feature's residual then moves by
+    # H_j dx_h = B_j y_h: moved = B Y, ((j, a), h).
+    Y = np.zeros((d, F))
+    for h in range(F):
+        for a in range(m):
+            zh = z[h, a]
+            for c in range(d):
+                Y[c, h] += zh * B[h, a, c]
+    moved = np.zeros((F * m, F))
+    for j in range(F):
+        for a in range(m):
+            row = moved[j * m + a]
+            for c in range(d):
+                bc = B[j, a, c]
+                if bc != 0.0:
+                    for h in range(F):
+                        row[h] += bc * Y[c, h]
+    # inlier[j, h]: every residual of feature j within the threshold after hypothesis h (loops
+    # run along h, contiguous, without early exits, so they vectorise).
+    inlier = np.empty((F, F), np.bool_)
+    for j in range(F):
+        for h in range(F):
+            inlier[j, h] = valid[j]
+        for a in range(m):
+            thr = threshold_sigma * sigma[a]
+            rja = r[j, a]
+            row = moved[j * m + a]
+            for h in range(F):
+                inlier[j, h] &= abs(rja - row[h]) <= thr
+    count = np.zeros(F, np.int64)
+    for j in range(F):
+        for h in range(F):
+            count[h] += inlier[j, h]
+    best, best_count = 0, -2
+    for h in range(F):
+        c = count[h] if valid[h] else -1
+        if c > best_count:  # ties: the first
+            best, best_count = h, c
+    for j in range(F):
+        out[j] = inlier[j, best]

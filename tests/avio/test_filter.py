@@ -194,3 +194,113 @@ def test_kitti00_paper_window_with_truth_calibration(shared_data):
     f = position_rmse_objective(run(seq, cals), seq.truth)
     assert f[0] < 4.9
     assert f[1] > f[0]
+
+
+# --- The compiled per-filter steps (avio/_kernels.py) against their numpy definitions. ---
+
+
+def _spd(rng, d):
+    A = rng.normal(size=(d, d))
+    return A @ A.T + d * np.eye(d)
+
+
+def test_kernel_covariance_prediction_is_f_p_ft_plus_q():
+    from avio._kernels import propagate_covariance
+
+    rng = np.random.default_rng(0)
+    P, Q = _spd(rng, 27), _spd(rng, 15) * 1e-3
+    Phi = np.eye(15) + 0.1 * rng.normal(size=(15, 15))
+    Fm = np.eye(27)
+    Fm[:15, :15] = Phi
+    Fm[:15, 15:] = 0.0
+    want = Fm @ P @ Fm.T
+    want[:15, :15] += Q
+    got = P.copy()
+    propagate_covariance(got, Phi, Q, np.empty((15, 27)), np.empty((15, 15)))
+    assert np.abs(got - want).max() < 1e-12 * np.abs(want).max()
+
+
+def test_kernel_slide_moves_the_clones_and_clones_the_shifted_pose():
+    from avio._kernels import shifted_pose, slide
+
+    rng = np.random.default_rng(1)
+    R, p, v = so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3)
+    omega, td = rng.normal(size=3), 0.01
+    cp, cR = rng.normal(size=(2, 3)), so3_exp(rng.normal(size=(2, 3)))
+    P = _spd(rng, 27)
+    R3, p3, J, E = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((3, 3))
+    shifted_pose(R, p, v, omega, td, R3, p3, J, E)
+    assert np.allclose(p3, p + v * td) and np.allclose(R3, R @ so3_exp(omega * td))
+    # Error-state map of the slide: new clone k-2 = old clone k-1, new clone k-1 = J core.
+    T = np.zeros((27, 27))
+    T[:15, :15] = np.eye(15)
+    T[15:21, 21:27] = np.eye(6)
+    T[21:27, :15] = J
+    want = T @ P @ T.T
+    cp0, cR0, P_got = cp.copy(), cR.copy(), P.copy()
+    slide(R, p, v, omega, td, cp0, cR0, P_got, np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((3, 3)),
+          np.empty((6, 27)))
+    assert np.abs(P_got - want).max() < 1e-12 * np.abs(want).max()
+    assert np.array_equal(cp0[0], cp[1]) and np.array_equal(cR0[0], cR[1])
+    assert np.allclose(cp0[1], p3) and np.allclose(cR0[1], R3)
+
+
+def test_kernel_zero_velocity_update_is_the_kalman_update():
+    from avio._kernels import zero_velocity_update
+
+    rng = np.random.default_rng(2)
+    P = _spd(rng, 27) * 1e-2
+    R, p, v = np.eye(3), np.zeros(3), np.array([0.3, -0.2, 0.1])
+    ba, bg, cp0, cp1 = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    cR0, cR1 = np.eye(3), np.eye(3)
+    H = np.zeros((3, 27))
+    H[:, 6:9] = np.eye(3)
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + 0.1**2 * np.eye(3))
+    dx = K @ (-v)
+    P_want = P - K @ H @ P
+    v_want = v + dx[6:9]
+    P_got = P.copy()
+    zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, P_got, 0.1, np.empty((3, 3)), np.empty((3, 3)))
+    assert np.abs(P_got - P_want).max() < 1e-12 and np.abs(v - v_want).max() < 1e-12
+    assert np.allclose(p, dx[0:3], atol=1e-15) and np.allclose(ba, dx[9:12], atol=1e-15)
+
+
+def test_kernel_solve_matches_lapack():
+    from avio._linalg import solve
+
+    rng = np.random.default_rng(3)
+    A, B = rng.normal(size=(12, 12)), rng.normal(size=(12, 13))
+    X = B.copy()
+    solve(A.copy(), X)
+    assert np.abs(X - np.linalg.solve(A, B)).max() < 1e-10
+
+
+def test_kernel_outlier_tests_match_their_numpy_definitions():
+    from avio.outliers import feature_innovations, mahalanobis_gate, one_point_ransac
+
+    rng = np.random.default_rng(4)
+    F, d = 10, 12
+    H = rng.normal(size=(F, 4, d))
+    Sig = _spd(rng, d) * 1e-3
+    sigma = np.array([1.0, 1.0, 1.5, 1.5])
+    r = 0.5 * rng.normal(size=(F, 4))
+    r[3] += 40.0  # an outlier
+    valid = np.ones(F, bool)
+    valid[7] = False
+    B, z = np.empty((F, 4, d)), np.empty((F, 4))
+    feature_innovations(r, H, Sig, sigma, B, z)
+    S = H @ Sig @ np.swapaxes(H, 1, 2) + np.diag(sigma**2)
+    assert np.abs(z - np.linalg.solve(S, r[..., None])[..., 0]).max() < 1e-9
+    gate = np.empty(F, bool)
+    mahalanobis_gate(r, z, valid, 13.28, gate)
+    d2 = np.einsum("fa,fa->f", r, np.linalg.solve(S, r[..., None])[..., 0])
+    assert np.array_equal(gate, valid & (d2 <= 13.28)) and not gate[3]
+    # 1-point RANSAC by brute force: hypothesis h corrects by Sig H_h^T S_h^-1 r_h.
+    inl = np.zeros((F, F), bool)
+    for h in range(F):
+        dxh = Sig @ H[h].T @ np.linalg.solve(S[h], r[h])
+        inl[:, h] = valid & np.all(np.abs(r - H @ dxh) <= 3.0 * sigma, axis=1)
+    count = np.where(valid, inl.sum(0), -1)
+    got = np.empty(F, bool)
+    one_point_ransac(r, B, z, sigma, valid, 3.0, got)
+    assert np.array_equal(got, inl[:, np.argmax(count)]) and not got[3] and not got[7]
