@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import orjson
 import pandas as pd
 
 EVAL_LOG = "evals.jsonl"
@@ -58,6 +59,22 @@ def write_json_atomic(path: Path, payload: dict) -> None:
         raise
 
 
+def _all_finite(entry: dict) -> bool:
+    arrays = [entry.get("X"), entry.get("f"), *entry.get("metrics", {}).values()]
+    return all(np.isfinite(a).all() for a in arrays if a is not None)
+
+
+def _dumps_line(entry: dict) -> bytes:
+    """One log line. orjson (exact shortest float repr) when every number is finite, since it
+    writes NaN as null; Python's json, which writes NaN and Infinity, otherwise."""
+    if _all_finite(entry):
+        contiguous = {k: np.ascontiguousarray(v) if isinstance(v, np.ndarray) else v for k, v in entry.items()}
+        if "metrics" in entry:
+            contiguous["metrics"] = {k: np.ascontiguousarray(v) for k, v in entry["metrics"].items()}
+        return orjson.dumps(contiguous, option=orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_SORT_KEYS) + b"\n"
+    return (json.dumps(_jsonable(entry), sort_keys=True) + "\n").encode()
+
+
 class EvalLog:
     """Append-only evaluation log of one job (``evals.jsonl``)."""
 
@@ -68,10 +85,10 @@ class EvalLog:
 
     def append(self, entry: dict) -> None:
         if self._fh is None:
-            self._fh = open(self.path, "a")
+            self._fh = open(self.path, "ab")
         # flushed to the kernel, which survives a killed process; an fsync per batch would cost
         # more than the harness's whole overhead budget on a cheap objective
-        self._fh.write(json.dumps(_jsonable(entry), sort_keys=True) + "\n")
+        self._fh.write(_dumps_line(entry))
         self._fh.flush()
 
     def close(self) -> None:

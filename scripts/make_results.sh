@@ -17,7 +17,7 @@ for problem in ${problems[@]}; do
   python -m bench problem="$problem" "${common[@]}" "${args[@]}" hydra.sweep.dir="results/$problem"
   end=$(date -u +%s)
   {
-    echo "- \`$problem\`: \`python -m bench problem=$problem ${common[*]} ${args[*]} hydra.sweep.dir=results/$problem\`"
+    echo "- \`$problem\`: \`python -m bench problem=$problem ${common[*]} $(printf '%q ' "${args[@]}")hydra.sweep.dir=results/$problem\`"
     echo "  — $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers conf || echo '-dirty'), $((end - start)) s"
   } >> results/.provenance
 done

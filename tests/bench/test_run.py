@@ -136,3 +136,17 @@ def test_record_is_plain_json_with_provenance(tmp_path):
         assert key in record
     assert record["versions"]["numpy"] == np.__version__
     assert read_record(tmp_path / "missing") is None
+
+
+class _SometimesNaN(AnalyticProblem):
+    def evaluate(self, X):
+        f, metrics = super().evaluate(X)
+        f[::3] = np.nan
+        return f, metrics
+
+
+def test_non_finite_values_round_trip_through_the_log_and_never_become_best(tmp_path):
+    record = _run(tmp_path, Budget(evals=64), problem=_SometimesNaN("sphere"))
+    f = np.concatenate([e["f"] for e in read_eval_log(tmp_path / "job")])
+    assert np.isnan(f[::3]).all() and np.isfinite(f[1::3]).all()
+    assert record["best_f"] == np.nanmin(f)
