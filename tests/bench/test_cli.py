@@ -42,6 +42,9 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["budget.seconds=-1"], "budget.seconds must be a positive number"),
         (["budget.seconds=nan"], "budget.seconds is nan"),
         (["seed=abc"], "seed must be an integer"),
+        (["problem.params.bounds={fx:[740,700]}"], "variable 'fx': lower bound 740.0 is not below upper bound 700.0"),
+        (["problem.params.space=polar"], "unknown space 'polar'"),
+        (["problem.params.filter={gain:2}"], "filter: unknown setting(s) ['gain']"),
     ],
 )
 def test_bad_input_fails_before_any_work_with_one_clear_message(tmp_path, args, message, capsys):
