@@ -108,18 +108,24 @@ class Substeps:
     T_s: np.ndarray
 
 
-def make_substeps(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Substeps:
-    """Split each frame interval into equal RK4 steps no longer than ``max_step_s`` and
-    interpolate the IMU (linearly in time) at their nodes and mid-points.
-
-    imu_t_s: (m,) IMU times; accel, gyro: (m, 3); frame_t_s: (N,) on the IMU clock.
-    """
+def _covered_frame_times(imu_t_s, frame_t_s) -> np.ndarray:
+    """``frame_t_s`` as floats; ImuPropagationError unless the IMU covers all of them."""
     frame_t_s = np.asarray(frame_t_s, float)
     if frame_t_s[0] < imu_t_s[0] - 1e-9 or frame_t_s[-1] > imu_t_s[-1] + 1e-9:
         raise ImuPropagationError(
             f"frames span [{frame_t_s[0]:.3f}, {frame_t_s[-1]:.3f}] s but the IMU covers only "
             f"[{imu_t_s[0]:.3f}, {imu_t_s[-1]:.3f}] s"
         )
+    return frame_t_s
+
+
+def make_substeps(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Substeps:
+    """Split each frame interval into equal RK4 steps no longer than ``max_step_s`` and
+    interpolate the IMU (linearly in time) at their nodes and mid-points.
+
+    imu_t_s: (m,) IMU times; accel, gyro: (m, 3); frame_t_s: (N,) on the IMU clock.
+    """
+    frame_t_s = _covered_frame_times(imu_t_s, frame_t_s)
     T = np.diff(frame_t_s)
     m_per = np.maximum(1, np.ceil(T / max_step_s - 1e-9).astype(int))
     start = np.concatenate([[0, 0], np.cumsum(m_per)])
@@ -263,12 +269,7 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     the IMU is interpolated linearly at step nodes and mid-points. The integrals S, SS, Vbg, Pbg
     are integrated as extra states of the same RK4, so they are as accurate as the increments.
     """
-    frame_t_s = np.asarray(frame_t_s, float)
-    if frame_t_s[0] < imu_t_s[0] - 1e-9 or frame_t_s[-1] > imu_t_s[-1] + 1e-9:
-        raise ImuPropagationError(
-            f"frames span [{frame_t_s[0]:.3f}, {frame_t_s[-1]:.3f}] s but the IMU covers only "
-            f"[{imu_t_s[0]:.3f}, {imu_t_s[-1]:.3f}] s"
-        )
+    frame_t_s = _covered_frame_times(imu_t_s, frame_t_s)
     T = np.diff(frame_t_s)
     m = int(max(1, np.ceil(T.max() / max_step_s - 1e-9)))
     h = T / m
