@@ -13,8 +13,8 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
 - ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
   ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
 - ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png``;
-- ``tables/`` — the paper's Tables 1–3, when ``bench/tables.py`` exists and the records hold a
-  VIO problem (see ``PAPER_TABLES_HOOK``; ``--no-tables`` skips them);
+- ``tables/`` — the paper's Tables 1–3 and figures (``bench.tables``), when the records hold a
+  VIO problem (``--no-tables`` skips them);
 - ``report.md`` — one readable document linking all of the above.
 
 Same records, same options → byte-identical CSV, Markdown and PNG files: nothing written
@@ -26,8 +26,6 @@ ends with one message on stderr and exit code 2.
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
 import re
 import sys
 from pathlib import Path
@@ -41,12 +39,6 @@ from bench.records import RecordError, find_job_dirs, read_record
 from bench.stats import StatsError, average_ranks, pairwise, ranks, summary, versus_leader
 from bench.targets import TargetsError, ecdf, ert_table, hitting_times, problem_targets, targets_table
 
-# The paper-tables hook: if ``bench/tables.py`` exists, the report calls its
-#   build_tables(dirs: list[Path], out: Path) -> list[Path]
-# with the report's input folders and ``OUT/tables``; the files it returns are linked from the
-# report and Markdown ones included verbatim. Its ``TablesError`` (records that cannot make the
-# tables, e.g. a sweep of analytic problems only) becomes a note in the report, not a failure.
-PAPER_TABLES_HOOK = "bench.tables"
 FLOAT_FORMAT = "%.8g"
 MD_FLOAT = ".4g"
 LEADERBOARD_MD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
@@ -93,13 +85,12 @@ def _md_table(frame: pd.DataFrame) -> str:
 
 
 def _paper_tables(dirs: list[Path], out: Path) -> tuple[list[Path], str]:
-    """Run the paper-tables hook: (files written, note for the report when none were)."""
-    if importlib.util.find_spec(PAPER_TABLES_HOOK) is None:
-        return [], "Not built: `bench/tables.py` is not present in this checkout."
-    module = importlib.import_module(PAPER_TABLES_HOOK)
+    """The paper's Tables 1–3 and figures: (files written, note for the report when none were)."""
+    from bench.tables import TablesError, build_tables  # imports the VIO stack only when needed
+
     try:
-        return [Path(p) for p in module.build_tables(dirs, out / "tables")], ""
-    except module.TablesError as err:
+        return [Path(p) for p in build_tables(dirs, out / "tables")], ""
+    except TablesError as err:
         return [], f"Not built: {err}."
 
 
@@ -110,7 +101,7 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
     dirs: folders (or job folders) to search; out: output folder (default ``dirs[0]/report``);
     pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
     alpha: significance level after Holm correction; seed: for the bootstrap intervals;
-    paper_tables: also build the paper's Tables 1–3 through ``bench.tables`` when it exists.
+    paper_tables: also build the paper's Tables 1–3 and figures through ``bench.tables``.
     Raises ReportError / RecordError / LeaderboardError on bad input.
     """
     roots = [Path(d) for d in dirs]
