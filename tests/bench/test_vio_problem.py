@@ -90,3 +90,15 @@ def test_kitti_raw_problem_runs_on_a_simulated_drive_written_in_the_raw_layout(t
     assert np.isfinite(f[0]) and f[0] == pytest.approx(problem.f_reference, rel=1e-3)
     assert list(metrics) == ["diverged", "velocity_rmse_mps", "attitude_rmse_deg"]  # truth unknown
     assert any((tmp_path / "cache").iterdir())  # the front end's output was cached
+
+
+def test_time_offset_is_an_eleventh_variable_with_its_error_reported():
+    problem = Synthetic(holdout=None, with_time_offset=True,
+                        sim={**SHORT["sim"], "time_offset_s": 0.02})
+    assert problem.space.names[-1] == "td" and problem.space.dim == 11
+    assert problem.truth[-1] == pytest.approx(0.02)
+    wrong = problem.truth.copy()
+    wrong[-1] = -0.03
+    f, metrics = problem.evaluate(np.stack([problem.truth, wrong]))
+    np.testing.assert_allclose(metrics["time_offset_error_ms"], [0.0, 50.0], atol=1e-9)
+    assert f[0] < f[1]
