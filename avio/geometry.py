@@ -1,4 +1,4 @@
-"""Batched rotation helpers: skew matrices, SO(3) exp/log, the paper's ZYX Euler angles.
+"""Batched rotation helpers: SO(3) exp/log, geodesic angles, the paper's ZYX Euler angles.
 
 Every function accepts arrays with arbitrary leading axes ``(...)``.
 """
@@ -7,19 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) with ``skew(a) @ b == cross(a, b)``."""
-    v = np.asarray(v, float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -v[..., 2]
-    out[..., 0, 2] = v[..., 1]
-    out[..., 1, 0] = v[..., 2]
-    out[..., 1, 2] = -v[..., 0]
-    out[..., 2, 0] = -v[..., 1]
-    out[..., 2, 1] = v[..., 0]
-    return out
 
 
 def so3_exp(rotvec: np.ndarray) -> np.ndarray:
@@ -58,11 +45,3 @@ def matrix_to_euler_zyx_deg(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, float)
     zyx = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
     return zyx[:, ::-1].reshape(R.shape[:-2] + (3,))
-
-
-def orthonormalize(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation matrix (SVD), (..., 3, 3)."""
-    U, _, Vt = np.linalg.svd(R)
-    D = np.ones(R.shape[:-1])
-    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
-    return (U * D[..., None, :]) @ Vt

@@ -31,8 +31,6 @@ What the loader does, and why:
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
@@ -52,6 +50,7 @@ from avio.sequence import (
     ImuSamples,
     Sequence,
     TripletTracks,
+    content_hash,
 )
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -109,16 +108,6 @@ def read_numeric_table(
             if not np.all(np.isfinite(values)):
                 raise error(f"{path}:{line_no}: non-finite value in {line.strip()[:80]!r}")
     raise error(f"{path}: no data rows")
-
-
-def content_hash(arrays: list[np.ndarray], extra: dict | None = None) -> str:
-    """Hex SHA-256 of arrays (dtype, shape, bytes) and a JSON-able dict: a data identity for records."""
-    digest = hashlib.sha256(json.dumps(extra or {}, sort_keys=True, default=str).encode())
-    for array in arrays:
-        array = np.ascontiguousarray(array)
-        digest.update(f"{array.dtype}{array.shape}".encode())
-        digest.update(array.tobytes())
-    return digest.hexdigest()
 
 
 def _check_increasing(t: np.ndarray, path: Path, first_line: int) -> None:

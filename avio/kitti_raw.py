@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avio.kitti00 import KittiDataError, content_hash
+from avio.kitti00 import KittiDataError
 from avio.oxts import (
     OxtsError,
     format_timestamps,
@@ -36,7 +36,7 @@ from avio.oxts import (
     read_timestamps,
     F,
 )
-from avio.sequence import Calibration, GroundTruth, ImuSamples, Sequence
+from avio.sequence import Calibration, GroundTruth, ImuSamples, Sequence, content_hash
 
 CALIB_FILES = ("calib_cam_to_cam.txt", "calib_imu_to_velo.txt", "calib_velo_to_cam.txt")
 

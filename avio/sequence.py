@@ -12,6 +12,8 @@ All arrays are numpy float64 unless stated; leading axes are named in each docst
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -19,6 +21,16 @@ import numpy as np
 
 class SequenceError(ValueError):
     """A sequence (or a part of it) is malformed; the message names what and where."""
+
+
+def content_hash(arrays: list[np.ndarray], extra: dict | None = None) -> str:
+    """Hex SHA-256 of arrays (dtype, shape, bytes) and a JSON-able dict: a data identity for records."""
+    digest = hashlib.sha256(json.dumps(extra or {}, sort_keys=True, default=str).encode())
+    for array in arrays:
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype}{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
 
 
 @dataclass(frozen=True)

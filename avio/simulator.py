@@ -17,8 +17,6 @@ changing e.g. the pixel noise leaves the trajectory and the IMU unchanged.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -27,7 +25,7 @@ import numpy as np
 from avio.camera_sim import make_landmarks, simulate_tracks
 from avio.geometry import so3_exp
 from avio.reference import IMAGE_SIZE_PX, kitti_2011_10_03_calibration
-from avio.sequence import Calibration, ImuNoise, ImuSamples, Sequence
+from avio.sequence import Calibration, ImuNoise, ImuSamples, Sequence, content_hash
 from avio.trajectory import KINDS, TrajectoryFn, make_trajectory
 
 GRAVITY_MPS2 = 9.81
@@ -195,16 +193,6 @@ def synthesize_imu(
     return ImuSamples(np.asarray(t_s, float), accel, gyro), b_a, b_g
 
 
-def _content_hash(arrays: list[np.ndarray], extra: dict) -> str:
-    h = hashlib.sha256()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str((a.dtype.str, a.shape)).encode())
-        h.update(a.tobytes())
-    h.update(json.dumps(extra, sort_keys=True, default=str).encode())
-    return h.hexdigest()
-
-
 def _initial_bias(value, sigma: float, on: bool, rng: np.random.Generator) -> np.ndarray:
     draw = rng.normal(0.0, sigma, 3)  # always drawn, so the stream does not depend on the option
     if value is not None:
@@ -250,14 +238,14 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
         from avio.render import RENDER_VERSION, render_frames  # OpenCV only when rendering
 
         extra["render_version"] = RENDER_VERSION
-    content_hash = _content_hash(arrays, extra)
+    data_hash = content_hash(arrays, extra)
     if config.output == "images":
         if image_dir is None:
             raise SimulatorError("SimConfig.output = 'images' needs an image_dir to render into")
 
         image_paths = render_frames(
             trajectory, frame_t, true_cal, landmarks, config.image_size_px,
-            Path(image_dir) / f"sim_{content_hash[:16]}", rngs["render"],
+            Path(image_dir) / f"sim_{data_hash[:16]}", rngs["render"],
         )
     sequence = Sequence(
         name=f"sim_{config.trajectory}_{seed}",
@@ -275,7 +263,7 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
             "source": "avio.simulator",
             "config": config_dict,
             "seed": int(seed),
-            "content_hash": content_hash,
+            "content_hash": data_hash,
             "true_accel_bias0_mps2": b_a0.tolist(),
             "true_gyro_bias0_radps": b_g0.tolist(),
             "n_landmarks": int(len(landmarks)),

@@ -16,6 +16,7 @@ Written as CSV, Markdown and LaTeX.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from avio.metrics import pose_errors
 from avio.reference import PAPER_TABLE1
 from avio.sequence import Calibration
 from bench.calibration_space import paper_parameters
+from bench import problems
 from bench.job import build_problem
 from bench.problems.vio import VioRmseProblem, calibration_errors
 from bench.records import RecordError, find_job_dirs, read_record
@@ -52,9 +54,16 @@ def _finished_records(dirs) -> list[dict]:
     return records
 
 
-def _problem_key(record: dict) -> str:
-    import json
+def _is_vio_problem(name: str) -> bool:
+    """Whether the registered problem ``name`` is a VIO problem (analytic and unknown ones are not)."""
+    try:
+        factory = problems.get(name)
+    except KeyError:
+        return False
+    return isinstance(factory, type) and issubclass(factory, VioRmseProblem)
 
+
+def _problem_key(record: dict) -> str:
     return json.dumps(record["config"]["problem"], sort_keys=True)
 
 
@@ -146,7 +155,7 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
     records = _finished_records(dirs)
     groups = {}
     for r in records:
-        if r["problem"] in ("sphere", "rastrigin", "rosenbrock"):
+        if not _is_vio_problem(r["problem"]):
             continue
         groups.setdefault(_problem_key(r), []).append(r)
     if not groups:
