@@ -30,7 +30,7 @@ OmegaConf.register_new_resolver("bench_unique", lambda: f"{os.getpid()}-{uuid.uu
                                 use_cache=True, replace=True)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def _job(cfg: DictConfig) -> float | None:
     hc = HydraConfig.get()
     job_dir = Path(hc.runtime.output_dir)

@@ -25,7 +25,7 @@ import optimizers
 from bench import problems
 from bench.job import ConfigError, budget_of, import_plugins
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+CONF_DIR = Path(__file__).resolve().parent / "conf"
 _HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
                              "--shell-completion", "-sc", "--resolve"}
 

@@ -18,6 +18,6 @@ for problem in ${problems[@]}; do
   end=$(date -u +%s)
   {
     echo "- \`$problem\`: \`python -m bench problem=$problem ${common[*]} $(printf '%q ' "${args[@]}")hydra.sweep.dir=results/$problem\`"
-    echo "  — $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers conf || echo '-dirty'), $((end - start)) s"
+    echo "  — $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $((end - start)) s"
   } >> results/.provenance
 done

@@ -72,7 +72,7 @@ def _code_blocks(markdown: str, language: str) -> list[str]:
 def test_readme_plugin_example_is_the_shipped_plugin():
     readme = (ROOT / "README.md").read_text()
     assert (ROOT / "optimizers" / "one_plus_one.py").read_text() in _code_blocks(readme, "python")
-    assert (ROOT / "conf" / "optimizer" / "one_plus_one.yaml").read_text() in _code_blocks(readme, "yaml")
+    assert (ROOT / "bench" / "conf" / "optimizer" / "one_plus_one.yaml").read_text() in _code_blocks(readme, "yaml")
 
 
 def _main_exit(argv, capsys):

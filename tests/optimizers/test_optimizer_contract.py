@@ -13,7 +13,7 @@ from optimizers import OptimizerError, registry
 
 NAMES = ["random", "psoga", "pso", "ga", "cmaes", "tpe", "nevergrad", "nelder_mead", "lbfgsb"]
 DETERMINISTIC = {"nelder_mead", "lbfgsb"}  # local methods from x0: the seed changes nothing
-CONF = Path(__file__).resolve().parents[2] / "conf" / "optimizer"
+CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "optimizer"
 # nevergrad's MetaModel (picked by NGOpt) warns on numpy >= 1.25; it is why numpy is pinned < 2.4
 pytestmark = pytest.mark.filterwarnings("ignore:Conversion of an array with ndim > 0:DeprecationWarning")
 
