@@ -209,6 +209,10 @@ class Sequence:
     truth_calibration: batch of 1 when known (simulated camera), else None.
     gravity_world_mps2: (3,) gravity in the world frame.
     imu_noise: the noise figures the filter should assume.
+    initial_gyro_bias_radps, initial_accel_bias_mps2: (3,) the filter's initial bias estimates
+        (its prior mean) where the source knows them (e.g. a standstill at the start, or a
+        ground-truth bias at frame 0, as the initial pose and velocity come from the truth);
+        None: zero.
     meta: free-form provenance (source files, seeds, config, content hash).
     """
 
@@ -223,6 +227,8 @@ class Sequence:
     truth_calibration: Calibration | None = None
     gravity_world_mps2: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
+    initial_gyro_bias_radps: np.ndarray | None = None
+    initial_accel_bias_mps2: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
