@@ -4,6 +4,8 @@ The key is a SHA-256 over the front-end settings, a format version, and either t
 content (default; robust to copies and touches) or their paths, sizes and mtimes (cheaper for
 long drives). A different key means a different file, so changed images or settings never
 read a stale result; an unreadable or inconsistent file is rebuilt (and overwritten).
+Each file also carries a SHA-256 of its own arrays (``checksum``), checked on load, so a file
+whose contents changed after it was written (bit rot, a partial copy, an edit) is rebuilt too.
 Files are written to a temporary name and renamed, so a crash never leaves half a file.
 """
 
@@ -21,9 +23,9 @@ from typing import Literal
 import numpy as np
 
 from avio.frontend import FrontendConfig, FrontendStats, track_images
-from avio.sequence import Sequence, SequenceError, TripletTracks
+from avio.sequence import Sequence, SequenceError, TripletTracks, content_hash
 
-CACHE_FORMAT_VERSION = 1
+CACHE_FORMAT_VERSION = 2  # 2: content checksum in the file
 _TRACK_FIELDS = ("frame_index", "uv_px", "valid")
 
 
@@ -50,18 +52,31 @@ def cache_key(
     return digest.hexdigest()
 
 
+def _array_names() -> list[str]:
+    """The arrays of a cache file, in the order the checksum reads them."""
+    return [*_TRACK_FIELDS, *("stats_" + f.name for f in fields(FrontendStats))]
+
+
+def _checksum(arrays: dict[str, np.ndarray], key: str) -> str:
+    """Hex SHA-256 of the file's arrays (dtype, shape, bytes) and its key."""
+    return content_hash([np.asarray(arrays[k]) for k in _array_names()], {"key": key})
+
+
 def _load(path: Path, key: str) -> tuple[TripletTracks, FrontendStats] | None:
-    """The cached result, or None when the file is absent, unreadable or not for ``key``."""
+    """The cached result, or None when the file is absent, unreadable, not for ``key`` or its
+    arrays do not match its checksum."""
     if not path.is_file():
         return None
     try:
         with np.load(path, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 return None
+            if str(data["checksum"]) != _checksum({k: data[k] for k in _array_names()}, key):
+                return None
             tracks = TripletTracks(**{k: data[k] for k in _TRACK_FIELDS})
             stats = FrontendStats(**{f.name: data["stats_" + f.name] for f in fields(FrontendStats)})
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, SequenceError):
-        # A truncated or foreign file: rebuilding is the cure, so the error is not raised.
+        # A truncated, foreign or pre-checksum file: rebuilding is the cure, so it is not raised.
         return None
     return tracks, stats
 
@@ -72,7 +87,7 @@ def _save(path: Path, key: str, tracks: TripletTracks, stats: FrontendStats) -> 
     handle, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     try:
         with os.fdopen(handle, "wb") as out:
-            np.savez(out, key=np.array(key), **arrays)
+            np.savez(out, key=np.array(key), checksum=np.array(_checksum(arrays, key)), **arrays)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -239,6 +239,33 @@ def test_a_corrupt_cache_file_is_rebuilt(tmp_path, damage):
     assert cached_track_images(paths, config, tmp_path / "cache")[2] is True
 
 
+def _rewrite_npz(path: Path, **changes) -> None:
+    """Rewrite a cache file with some arrays replaced (None: dropped), the rest as they were."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays.update(changes)
+    np.savez(path, **{k: v for k, v in arrays.items() if v is not None})
+
+
+@pytest.mark.parametrize("change", [
+    lambda a: {"uv_px": a["uv_px"] + 0.25},  # a valid file, key intact, tracks altered
+    lambda a: {"stats_n_inliers": a["stats_n_inliers"][::-1].copy()},
+    lambda a: {"checksum": None},  # a file of the previous format, without a checksum
+])
+def test_a_cache_file_whose_arrays_do_not_match_its_checksum_is_rebuilt(tmp_path, change):
+    paths = _texture_frames(tmp_path / "img", SHIFTS)
+    config = FrontendConfig()
+    good, good_stats, _ = cached_track_images(paths, config, tmp_path / "cache")
+    (path,) = (tmp_path / "cache").glob("*.npz")
+    with np.load(path, allow_pickle=False) as data:
+        _rewrite_npz(path, **change({k: data[k] for k in data.files}))
+    rebuilt, stats, hit = cached_track_images(paths, config, tmp_path / "cache")
+    assert hit is False
+    np.testing.assert_array_equal(rebuilt.uv_px, good.uv_px)
+    np.testing.assert_array_equal(stats.n_inliers, good_stats.n_inliers)
+    assert cached_track_images(paths, config, tmp_path / "cache")[2] is True
+
+
 def test_cache_folder_that_is_a_file_is_an_error(tmp_path):
     paths = _texture_frames(tmp_path / "img", SHIFTS[:3])
     (tmp_path / "cache").write_text("")
