@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, check_bounds
+from optimizers.base import AskTell
 from optimizers.registry import register
 
 
 @register("cmaes")
-class CmaEs:
+class CmaEs(AskTell):
     """CMA-ES; the batch is one generation (``population_size`` points, default 4 + 3 ln d).
 
     Starts at ``x0`` when given (the reference calibration), else at the box centre, with step
@@ -31,42 +31,24 @@ class CmaEs:
                  population_size: int | None = None) -> None:
         from cmaes import CMA
 
-        self.lower, self.upper = check_bounds(lower, upper)
-        d = self.lower.size
-        if not sigma0 > 0:
-            raise OptimizerError(f"cmaes: sigma0 must be > 0 (fraction of the box), got {sigma0}")
-        self._span = self.upper - self.lower
-        mean = np.full(d, 0.5) if x0 is None else (np.asarray(x0, float) - self.lower) / self._span
-        mean = np.clip(mean, 0.0, 1.0)
-        # cmaes needs a seed in [0, 2**32); any int the harness passes maps there reproducibly
-        popsize = None if population_size is None else int(population_size)
-        self._cma = CMA(mean=mean, sigma=float(sigma0), bounds=np.tile([0.0, 1.0], (d, 1)),
-                        seed=int(seed) % 2**32, population_size=popsize)
-        self._pending: np.ndarray | None = None
-        self._best = BestTracker(d)
+        super().__init__(lower, upper)
+        sigma0 = self.float_param("sigma0", sigma0, 0, low_open=True)
+        popsize = None if population_size is None else self.int_param("population_size", population_size, 2)
+        mean = np.full(self.dim, 0.5) if x0 is None else self.to_unit(x0)
+        # cmaes needs a seed in [0, 2**32); any int >= 0 the harness passes maps there reproducibly
+        self._cma = CMA(mean=mean, sigma=sigma0, bounds=np.tile([0.0, 1.0], (self.dim, 1)),
+                        seed=self.seed_param(seed) % 2**32, population_size=popsize)
+        self._U: np.ndarray | None = None
 
-    def ask(self) -> np.ndarray:
-        if self._pending is not None:
-            raise OptimizerError("cmaes: ask() called twice without tell()")
-        self._pending = np.array([self._cma.ask() for _ in range(self._cma.population_size)])
-        return np.clip(self.lower + self._pending * self._span, self.lower, self.upper)  # clip rounding
+    def _ask(self) -> np.ndarray:
+        self._U = np.array([self._cma.ask() for _ in range(self._cma.population_size)])
+        return self.from_unit(self._U)
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        U, self._pending = self._pending, None
-        f = np.asarray(f, float).ravel()
-        if U is None or f.shape != (len(U),):
-            raise OptimizerError(f"cmaes: tell() needs the f of the last ask "
-                                 f"({self._cma.population_size},), got {f.shape}")
-        f = np.where(np.isnan(f), np.inf, f)  # NaN ranks as worst; CMA-ES only uses the ranking
-        self._cma.tell(list(zip(U, f)))
-        self._best.update(X, f)
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
+        self._cma.tell(list(zip(self._U, f)))  # NaN arrives as +inf: CMA-ES only uses the ranking
 
     @property
     def stop(self) -> str | None:
         if self._cma.should_stop():
             return f"converged: cmaes should_stop() at generation {self._cma.generation}"
         return None
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, check_bounds
+from optimizers.base import AskTell
 from optimizers.registry import register
 
 
 @register("one_plus_one")
-class OnePlusOne:
+class OnePlusOne(AskTell):
     """Mutate the best point with Gaussian steps; widen the step after a success, shrink it after a failure.
 
     Works in units of the box width. ``sigma0``: initial step (fraction of the width);
@@ -18,20 +18,19 @@ class OnePlusOne:
 
     def __init__(self, lower, upper, seed: int, x0=None, sigma0: float = 0.2,
                  batch_size: int = 4, min_sigma: float = 1e-6) -> None:
-        self.lower, self.upper = check_bounds(lower, upper)
-        self.rng = np.random.default_rng(seed)
-        self.sigma, self.batch_size, self.min_sigma = float(sigma0), int(batch_size), float(min_sigma)
+        super().__init__(lower, upper)  # bounds, ask/tell guards, NaN -> inf, best tracking
+        self.sigma = self.float_param("sigma0", sigma0, 0, 1, low_open=True)
+        self.batch_size = self.int_param("batch_size", batch_size, 1)
+        self.min_sigma = self.float_param("min_sigma", min_sigma, 0)
+        self.rng = np.random.default_rng(self.seed_param(seed))
         start = self.rng.uniform(self.lower, self.upper) if x0 is None else np.asarray(x0, float)
         self.parent, self.parent_f = start, np.inf
-        self._best = BestTracker(self.lower.size)
 
-    def ask(self) -> np.ndarray:
-        width = self.upper - self.lower
-        steps = self.rng.normal(size=(self.batch_size, self.lower.size)) * self.sigma * width
-        return np.clip(self.parent + steps, self.lower, self.upper)
+    def _ask(self) -> np.ndarray:
+        steps = self.rng.normal(size=(self.batch_size, self.dim)) * self.sigma * self.span
+        return self.parent + steps
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        self._best.update(X, f)
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
         i = int(np.argmin(f))
         success = f[i] < self.parent_f
         if success:
@@ -41,7 +40,3 @@ class OnePlusOne:
     @property
     def stop(self) -> str | None:
         return f"step size {self.sigma:.2g} below {self.min_sigma:g}" if self.sigma < self.min_sigma else None
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f

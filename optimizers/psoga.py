@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import OptimizerError, check_bounds
+from optimizers.base import AskTell
 from optimizers.registry import register
 
 _STOP_RULES = ("patience", "paper", "none")
 
 
 @register("psoga")
-class PsoGa:
+class PsoGa(AskTell):
     """Hybrid particle swarm / genetic algorithm; the batch is the swarm (``pop_size`` points).
 
     Cycle (each phase is one ``ask``/``tell`` of ``pop_size`` points):
@@ -69,23 +69,25 @@ class PsoGa:
         from pymoo.operators.mutation.pm import PM
         from pymoo.operators.selection.tournament import TournamentSelection
 
-        self.lower, self.upper = check_bounds(lower, upper)
-        d = self.lower.size
-        if int(pop_size) < 2 or int(pop_size) % 2:
-            raise OptimizerError(f"psoga: pop_size must be an even integer >= 2, got {pop_size}")
-        if stop_rule not in _STOP_RULES:
-            raise OptimizerError(f"psoga: stop_rule must be one of {_STOP_RULES}, got {stop_rule!r}")
-        if not (v_max > 0 and epsilon >= 0 and int(patience) >= 1 and tol >= 0):
-            raise OptimizerError(f"psoga: need v_max > 0, epsilon >= 0, patience >= 1, tol >= 0; got "
-                                 f"{v_max}, {epsilon}, {patience}, {tol}")
-        self.n, self.w, self.c1, self.c2, self.v_max = int(pop_size), float(w), float(c1), float(c2), float(v_max)
-        self.stop_rule, self.epsilon, self.patience, self.tol = stop_rule, float(epsilon), int(patience), float(tol)
-        self.rng = np.random.default_rng(seed)
+        super().__init__(lower, upper)  # bounds, ask/tell guards, NaN -> inf, best tracking
+        d = self.dim
+        self.n = self.int_param("pop_size", pop_size, 2, even=True)
+        self.w, self.c1, self.c2 = (self.float_param(k, v, 0) for k, v in (("w", w), ("c1", c1), ("c2", c2)))
+        self.v_max = self.float_param("v_max", v_max, 0, low_open=True)
+        self.stop_rule = self.choice_param("stop_rule", stop_rule, _STOP_RULES)
+        self.epsilon = self.float_param("epsilon", epsilon, 0)
+        self.patience = self.int_param("patience", patience, 1)
+        self.tol = self.float_param("tol", tol, 0)
+        crossover_prob = self.float_param("crossover_prob", crossover_prob, 0, 1)
+        sbx_eta = self.float_param("sbx_eta", sbx_eta, 0, low_open=True)
+        pm_eta = self.float_param("pm_eta", pm_eta, 0, low_open=True)
+        mutation_prob = 1.0 / d if mutation_prob is None else self.float_param("mutation_prob", mutation_prob, 0, 1)
+        self.rng = np.random.default_rng(self.seed_param(seed))
         self._Population, self._pso_equation = Population, pso_equation
         self._unit = Problem(n_var=d, n_obj=1, xl=np.zeros(d), xu=np.ones(d))
         self._select = TournamentSelection(func_comp=comp_by_cv_and_fitness, pressure=2)
         self._crossover = SBX(prob=crossover_prob, eta=sbx_eta)
-        self._mutation = PM(prob=1.0, prob_var=(1.0 / d) if mutation_prob is None else mutation_prob, eta=pm_eta)
+        self._mutation = PM(prob=1.0, prob_var=mutation_prob, eta=pm_eta)
 
         self._phase = "init"  # what the next ask produces: "init", "pso" or "ga"
         self._asked: np.ndarray | None = None  # last asked batch, normalised (n, d)
@@ -95,26 +97,17 @@ class PsoGa:
         self._f_last_improvement = np.inf  # best f when the patience counter was last reset
         self.iterations, self._stale, self._stop = 0, 0, None
 
-    def ask(self) -> np.ndarray:
-        if self._asked is not None:
-            raise OptimizerError("psoga: ask() called twice without tell()")
+    def _ask(self) -> np.ndarray:
         if self._phase == "init":
-            U = self.rng.random((self.n, self.lower.size))
+            U = self.rng.random((self.n, self.dim))
         elif self._phase == "pso":
             U = self._pso_step()
         else:
             U = self._ga_offspring()
         self._asked = U
-        return np.clip(self.lower + U * (self.upper - self.lower), self.lower, self.upper)  # clip rounding
+        return self.from_unit(U)
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        if self._asked is None:
-            raise OptimizerError("psoga: tell() without a pending ask()")
-        f = np.asarray(f, float).ravel()
-        if f.shape != (self.n,) or np.shape(X) != (self.n, self.lower.size):
-            raise OptimizerError(f"psoga: tell expects X ({self.n}, {self.lower.size}) and f ({self.n},), "
-                                 f"got {np.shape(X)} and {f.shape}")
-        f = np.where(np.isnan(f), np.inf, f)  # NaN ranks as worst; +inf already does
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
         U, self._asked = self._asked, None
         if self._phase == "init":
             self.u, self.f, self.v = U, f, np.zeros_like(U)
@@ -184,7 +177,3 @@ class PsoGa:
     @property
     def stop(self) -> str | None:
         return self._stop
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self.lower + self.gbest_u * (self.upper - self.lower), self.gbest_f

@@ -11,54 +11,42 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, check_bounds
+from optimizers.base import AskTell, OptimizerError
 from optimizers.registry import register
 
 
-class _PymooAdapter:
+class _PymooAdapter(AskTell):
     """Shared translation between a pymoo single-objective algorithm and ask/tell."""
 
-    def __init__(self, lower, upper, seed: int, algorithm) -> None:
+    def __init__(self, lower, upper, seed: int, make_algorithm) -> None:
         from pymoo.core.evaluator import Evaluator
         from pymoo.core.problem import Problem
-        from pymoo.problems.static import StaticProblem
         from pymoo.core.termination import NoTermination
+        from pymoo.problems.static import StaticProblem
 
-        self.lower, self.upper = check_bounds(lower, upper)
-        self._problem = Problem(n_var=self.lower.size, n_obj=1, xl=self.lower, xu=self.upper)
+        super().__init__(lower, upper)
+        seed = self.seed_param(seed)
+        self._problem = Problem(n_var=self.dim, n_obj=1, xl=self.lower, xu=self.upper)
         self._static = StaticProblem
-        self.algorithm = algorithm
-        self.algorithm.seed = int(seed)
+        self.algorithm = make_algorithm()
+        self.algorithm.seed = seed
         self.algorithm.evaluator = Evaluator()
         self.algorithm.setup(self._problem, termination=NoTermination(), verbose=False)
-        self._pending = None
-        self._best = BestTracker(self.lower.size)
+        self._pop = None
 
-    def ask(self) -> np.ndarray:
-        if self._pending is not None:
-            raise OptimizerError(f"{self.registered_name}: ask() called twice without tell()")
-        self._pending = self.algorithm.ask()
-        if self._pending is None or len(self._pending) == 0:
+    def _ask(self) -> np.ndarray:
+        self._pop = self.algorithm.ask()
+        if self._pop is None or len(self._pop) == 0:
             raise OptimizerError(f"{self.registered_name}: pymoo produced no infill (population collapsed)")
-        return np.clip(self._pending.get("X"), self.lower, self.upper)
+        return self._pop.get("X")
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        pop, self._pending = self._pending, None
-        f = np.asarray(f, float).ravel()
-        if pop is None or f.shape != (len(pop),):
-            raise OptimizerError(f"{self.registered_name}: tell() needs f of the last ask, got {f.shape}")
-        f = np.where(np.isnan(f), np.inf, f)  # NaN ranks as worst
-        self.algorithm.evaluator.eval(self._static(self._problem, F=f[:, None]), pop)
-        self.algorithm.tell(infills=pop)
-        self._best.update(X, f)
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
+        self.algorithm.evaluator.eval(self._static(self._problem, F=f[:, None]), self._pop)  # NaN arrives as +inf
+        self.algorithm.tell(infills=self._pop)
 
     @property
     def stop(self) -> str | None:
         return None  # pymoo's own termination is off; these run until the budget ends
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f
 
 
 @register("pso")
@@ -78,8 +66,12 @@ class PymooPSO(_PymooAdapter):
                  max_velocity_rate: float = 0.2) -> None:
         from pymoo.algorithms.soo.nonconvex.pso import PSO
 
-        super().__init__(lower, upper, seed, PSO(pop_size=int(pop_size), w=w, c1=c1, c2=c2,
-                                                 adaptive=bool(adaptive), max_velocity_rate=max_velocity_rate))
+        pop_size = self.int_param("pop_size", pop_size, 2)
+        w, c1, c2 = (self.float_param(k, v, 0) for k, v in (("w", w), ("c1", c1), ("c2", c2)))
+        adaptive = self.bool_param("adaptive", adaptive)
+        rate = self.float_param("max_velocity_rate", max_velocity_rate, 0, 1, low_open=True)
+        super().__init__(lower, upper, seed, lambda: PSO(pop_size=pop_size, w=w, c1=c1, c2=c2, adaptive=adaptive,
+                                                         max_velocity_rate=rate))
 
 
 @register("ga")
@@ -100,7 +92,12 @@ class PymooGA(_PymooAdapter):
         from pymoo.operators.crossover.sbx import SBX
         from pymoo.operators.mutation.pm import PM
 
-        super().__init__(lower, upper, seed, GA(
-            pop_size=int(pop_size), n_offsprings=None if n_offsprings is None else int(n_offsprings),
-            crossover=SBX(prob=sbx_prob, eta=sbx_eta), mutation=PM(eta=pm_eta),
-            eliminate_duplicates=bool(eliminate_duplicates)))
+        pop_size = self.int_param("pop_size", pop_size, 2)
+        n_offsprings = None if n_offsprings is None else self.int_param("n_offsprings", n_offsprings, 1)
+        sbx_prob = self.float_param("sbx_prob", sbx_prob, 0, 1)
+        sbx_eta = self.float_param("sbx_eta", sbx_eta, 0, low_open=True)
+        pm_eta = self.float_param("pm_eta", pm_eta, 0, low_open=True)
+        eliminate_duplicates = self.bool_param("eliminate_duplicates", eliminate_duplicates)
+        super().__init__(lower, upper, seed, lambda: GA(
+            pop_size=pop_size, n_offsprings=n_offsprings, crossover=SBX(prob=sbx_prob, eta=sbx_eta),
+            mutation=PM(eta=pm_eta), eliminate_duplicates=eliminate_duplicates))

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, check_bounds
+from optimizers.base import AskTell
 from optimizers.registry import register
 
 
 @register("random")
-class RandomSearch:
+class RandomSearch(AskTell):
     """Independent uniform samples in the box, ``batch_size`` at a time.
 
     >>> opt = RandomSearch([0, 0], [1, 1], seed=0, batch_size=4)
@@ -18,21 +18,12 @@ class RandomSearch:
     """
 
     def __init__(self, lower, upper, seed: int, x0=None, batch_size: int = 32) -> None:
-        self.lower, self.upper = check_bounds(lower, upper)
-        self.rng = np.random.default_rng(seed)
-        self.batch_size = int(batch_size)
-        self._best = BestTracker(self.lower.size)
+        super().__init__(lower, upper)
+        self.batch_size = self.int_param("batch_size", batch_size, 1)
+        self.rng = np.random.default_rng(self.seed_param(seed))
 
-    def ask(self) -> np.ndarray:
-        return self.rng.uniform(self.lower, self.upper, size=(self.batch_size, self.lower.size))
+    def _ask(self) -> np.ndarray:
+        return self.rng.uniform(self.lower, self.upper, size=(self.batch_size, self.dim))
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        self._best.update(X, f)
-
-    @property
-    def stop(self) -> str | None:
-        return None
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
+        pass  # nothing to learn: the base keeps the best

@@ -17,7 +17,7 @@ import threading
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, check_bounds
+from optimizers.base import AskTell, OptimizerError, check_bounds
 from optimizers.registry import register
 
 
@@ -25,21 +25,19 @@ class _Abort(Exception):
     """Sent into the worker's objective to unwind ``minimize`` when the optimiser is dropped."""
 
 
-class _ThreadedMinimize:
+class _ThreadedMinimize(AskTell):
     """Runs ``minimize(objective, u0, ...)`` in a thread; the objective's batches become asks."""
+
+    nonfinite = "worst"  # scipy needs finite numbers: a NaN/inf is told as the worst finite value
 
     def __init__(self, lower, upper, x0, method: str, options: dict, jac: bool, stencil) -> None:
         from scipy.optimize import minimize
 
-        self.lower, self.upper = check_bounds(lower, upper)
-        self._span = self.upper - self.lower
+        super().__init__(lower, upper)
         x0 = (self.lower + self.upper) / 2 if x0 is None else np.asarray(x0, float)
-        u0 = np.clip((x0 - self.lower) / self._span, 0.0, 1.0)
-        self._best = BestTracker(self.lower.size)
+        u0 = self.to_unit(x0)
         self._stop: str | None = None
-        self._pending: np.ndarray | None = None
-        self._asked: np.ndarray | None = None
-        self._worst = -np.inf
+        self._next: np.ndarray | None = None  # the batch the worker's objective is waiting on
         asks, tells = queue.Queue(maxsize=1), queue.Queue(maxsize=1)
         self._asks, self._tells = asks, tells
         bounds = [(0.0, 1.0)] * self.lower.size
@@ -69,31 +67,19 @@ class _ThreadedMinimize:
     def _receive(self) -> None:
         kind, payload = self._asks.get()
         if kind == "batch":
-            self._pending = payload
+            self._next = payload
         elif kind == "done":
             self._stop = payload
         else:
             raise OptimizerError(payload)
 
-    def ask(self) -> np.ndarray:
+    def _ask(self) -> np.ndarray:
         if self._stop is not None:
             raise OptimizerError(f"{self.registered_name}: ask() after the optimiser stopped ({self._stop})")
-        if self._pending is None:
-            raise OptimizerError(f"{self.registered_name}: ask() called twice without tell()")
-        U, self._asked, self._pending = self._pending, self._pending, None
-        return np.clip(self.lower + U * self._span, self.lower, self.upper)  # clip rounding
+        U, self._next = self._next, None
+        return self.from_unit(U)
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        f = np.asarray(f, float).ravel()
-        if self._asked is None or f.shape != (len(self._asked),):
-            raise OptimizerError(f"{self.registered_name}: tell() needs the f of the last ask, got {f.shape}")
-        self._best.update(X, f)
-        finite = np.isfinite(f)
-        if finite.any():
-            self._worst = max(self._worst, float(np.max(f[finite])))
-        # scipy needs finite numbers: a NaN/inf becomes the worst finite value seen (1e10 before any)
-        f = np.where(finite, f, self._worst if np.isfinite(self._worst) else 1e10)
-        self._asked = None
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
         self._tells.put(f)
         self._receive()
 
@@ -109,10 +95,6 @@ class _ThreadedMinimize:
     @property
     def stop(self) -> str | None:
         return self._stop
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f
 
 
 def _fd_gradient(U: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -156,10 +138,12 @@ class LBfgsB(_ThreadedMinimize):
 
     def __init__(self, lower, upper, seed: int, x0=None, fd_step: float = 1e-3, central: bool = False,
                  ftol: float = 1e-9, gtol: float = 1e-6, maxiter: int = 1000) -> None:
-        if not 0 < fd_step < 0.5:
-            raise OptimizerError(f"lbfgsb: fd_step must be in (0, 0.5) box widths, got {fd_step}")
-        super().__init__(lower, upper, x0, "L-BFGS-B", {"ftol": ftol, "gtol": gtol, "maxiter": int(maxiter)},
-                         jac=True, stencil=_stencil(float(fd_step), bool(central)))
+        self.seed_param(seed)  # unused (deterministic from x0) but still a valid seed
+        fd_step = self.float_param("fd_step", fd_step, 0, 0.5, low_open=True, high_open=True)
+        options = {"ftol": self.float_param("ftol", ftol, 0), "gtol": self.float_param("gtol", gtol, 0),
+                   "maxiter": self.int_param("maxiter", maxiter, 1)}
+        super().__init__(lower, upper, x0, "L-BFGS-B", options, jac=True,
+                         stencil=_stencil(fd_step, self.bool_param("central", central)))
 
 
 @register("nelder_mead")
@@ -176,12 +160,14 @@ class NelderMead(_ThreadedMinimize):
 
     def __init__(self, lower, upper, seed: int, x0=None, initial_step: float = 0.1, xatol: float = 1e-4,
                  fatol: float = 1e-6, maxfev: int = 100_000) -> None:
-        if not 0 < initial_step <= 0.5:
-            raise OptimizerError(f"nelder_mead: initial_step must be in (0, 0.5] box widths, got {initial_step}")
+        self.seed_param(seed)  # unused (deterministic from x0) but still a valid seed
+        initial_step = self.float_param("initial_step", initial_step, 0, 0.5, low_open=True)
+        xatol, fatol = self.float_param("xatol", xatol, 0), self.float_param("fatol", fatol, 0)
+        maxfev = self.int_param("maxfev", maxfev, 1)
         lo, hi = check_bounds(lower, upper)
         u0 = np.clip((np.asarray((lo + hi) / 2 if x0 is None else x0, float) - lo) / (hi - lo), 0.0, 1.0)
         h = np.where(u0 + initial_step <= 1.0, initial_step, -initial_step)
         simplex = np.vstack([u0, u0 + np.diag(h)])
         super().__init__(lower, upper, x0, "Nelder-Mead",
-                         {"initial_simplex": simplex, "xatol": xatol, "fatol": fatol, "maxfev": int(maxfev)},
+                         {"initial_simplex": simplex, "xatol": xatol, "fatol": fatol, "maxfev": maxfev},
                          jac=False, stencil=lambda u: u[None, :])

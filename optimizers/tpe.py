@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from optimizers.base import BestTracker, OptimizerError, WorstFiniteFill, check_bounds
+from optimizers.base import AskTell
 from optimizers.registry import register
 
 
 @register("tpe")
-class Tpe:
+class Tpe(AskTell):
     """Tree-structured Parzen estimator (``optuna.samplers.TPESampler``), ``batch_size`` trials per ask.
 
     Batch behaviour: TPE learns from every tell; asking ``batch_size`` trials before telling
@@ -29,46 +29,29 @@ class Tpe:
     (3, 2)
     """
 
+    nonfinite = "worst"  # TPE models values: a NaN/inf is told as the worst finite value
+
     def __init__(self, lower, upper, seed: int, x0=None, batch_size: int = 8, n_startup_trials: int = 10,
                  multivariate: bool = True, constant_liar: bool = True, n_ei_candidates: int = 24) -> None:
         import optuna
 
-        self.lower, self.upper = check_bounds(lower, upper)
-        if int(batch_size) < 1:
-            raise OptimizerError(f"tpe: batch_size must be >= 1, got {batch_size}")
+        super().__init__(lower, upper)
+        self.batch_size = self.int_param("batch_size", batch_size, 1)
         optuna.logging.set_verbosity(optuna.logging.WARNING)  # one INFO line per trial otherwise
-        sampler = optuna.samplers.TPESampler(seed=int(seed) % 2**32, n_startup_trials=int(n_startup_trials),
-                                             multivariate=bool(multivariate), constant_liar=bool(constant_liar),
-                                             n_ei_candidates=int(n_ei_candidates))
+        sampler = optuna.samplers.TPESampler(seed=self.seed_param(seed) % 2**32,
+                                             n_startup_trials=self.int_param("n_startup_trials", n_startup_trials, 0),
+                                             multivariate=self.bool_param("multivariate", multivariate),
+                                             constant_liar=self.bool_param("constant_liar", constant_liar),
+                                             n_ei_candidates=self.int_param("n_ei_candidates", n_ei_candidates, 1))
         self._study = optuna.create_study(direction="minimize", sampler=sampler)
         self._dists = {f"x{i}": optuna.distributions.FloatDistribution(lo, hi)
                        for i, (lo, hi) in enumerate(zip(self.lower, self.upper))}
-        self.batch_size = int(batch_size)
-        self._pending: list = []
-        self._best = BestTracker(self.lower.size)
-        self._fill = WorstFiniteFill()  # NaN/inf told as the worst finite value
+        self._trials: list = []
 
-    def ask(self) -> np.ndarray:
-        if self._pending:
-            raise OptimizerError("tpe: ask() called twice without tell()")
-        self._pending = [self._study.ask(self._dists) for _ in range(self.batch_size)]
-        X = np.array([[t.params[k] for k in self._dists] for t in self._pending])
-        return np.clip(X, self.lower, self.upper)
+    def _ask(self) -> np.ndarray:
+        self._trials = [self._study.ask(self._dists) for _ in range(self.batch_size)]
+        return np.array([[t.params[k] for k in self._dists] for t in self._trials])
 
-    def tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        trials, self._pending = self._pending, []
-        f = np.asarray(f, float).ravel()
-        if not trials or f.shape != (len(trials),):
-            raise OptimizerError(f"tpe: tell() needs the f of the last ask ({self.batch_size},), got {f.shape}")
-        values = self._fill(f)
-        for trial, value in zip(trials, values):
+    def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
+        for trial, value in zip(self._trials, f):
             self._study.tell(trial, float(value))
-        self._best.update(X, f)
-
-    @property
-    def stop(self) -> str | None:
-        return None
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        return self._best.x, self._best.f

@@ -11,7 +11,7 @@ import yaml
 
 from optimizers import OptimizerError, registry
 
-NAMES = ["random", "psoga", "pso", "ga", "cmaes", "tpe", "nevergrad", "nelder_mead", "lbfgsb"]
+NAMES = registry.available()  # every registered plugin, the README example included; new ones too
 DETERMINISTIC = {"nelder_mead", "lbfgsb"}  # local methods from x0: the seed changes nothing
 CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "optimizer"
 # nevergrad's MetaModel (picked by NGOpt) warns on numpy >= 1.25; it is why numpy is pinned < 2.4
@@ -102,7 +102,7 @@ def test_best_is_the_minimum_told(name):
     np.testing.assert_allclose(_f(x[None])[0], fbest)
 
 
-@pytest.mark.parametrize("name", sorted(set(NAMES) - {"random"}))
+@pytest.mark.parametrize("name", NAMES)
 def test_ask_twice_without_tell_is_an_error(name):
     opt = registry.get(name)(LOWER, UPPER, seed=0, x0=X0)
     opt.ask()
@@ -110,7 +110,7 @@ def test_ask_twice_without_tell_is_an_error(name):
         opt.ask()
 
 
-@pytest.mark.parametrize("name", sorted(set(NAMES) - {"random"}))
+@pytest.mark.parametrize("name", NAMES)
 def test_tell_with_wrong_length_is_an_error(name):
     opt = registry.get(name)(LOWER, UPPER, seed=0, x0=X0)
     X = opt.ask()
@@ -138,8 +138,70 @@ def test_yaml_names_the_plugin_and_exposes_every_hyperparameter(name):
     assert opt.ask().shape[1] == LOWER.size
 
 
-def test_registry_discovers_every_plugin():
-    assert set(NAMES) <= set(registry.available())
+def test_registry_discovers_every_plugin_module_and_yaml():
+    shipped = {"random", "psoga", "pso", "ga", "cmaes", "tpe", "nevergrad", "nelder_mead", "lbfgsb", "one_plus_one"}
+    assert shipped <= set(NAMES)
+    assert {p.stem for p in CONF.glob("*.yaml")} == set(NAMES)  # every plugin has a yaml, every yaml a plugin
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_plugin_uses_the_shared_base(name):
+    from optimizers.base import AskTell
+
+    cls = registry.get(name)
+    assert issubclass(cls, AskTell)
+    # the guards live in the base only: no plugin re-implements ask/tell/best
+    for method in ("ask", "tell", "best"):
+        assert method not in vars(cls), f"{name} overrides {method}"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_tell_without_ask_is_an_error(name):
+    opt = registry.get(name)(LOWER, UPPER, seed=0, x0=X0)
+    with pytest.raises(OptimizerError, match="without a pending ask"):
+        opt.tell(np.zeros((2, LOWER.size)), np.zeros(2))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_negative_seed_is_refused_naming_the_key(name):
+    with pytest.raises(OptimizerError, match=r"seed must be an integer >= 0, got -1"):
+        registry.get(name)(LOWER, UPPER, seed=-1, x0=X0)
+
+
+def test_nan_in_a_batch_does_not_become_the_parent_of_one_plus_one():
+    # the (1+1)-ES took argmin(f) with NaN in f, i.e. the NaN point, as its new parent
+    opt = registry.get("one_plus_one")(LOWER, UPPER, seed=0, x0=X0, batch_size=3)
+    X = opt.ask()
+    opt.tell(X, np.array([np.nan, 2.0, 1.0]))
+    np.testing.assert_array_equal(opt.parent, X[2])
+    assert opt.best[1] == 1.0
+
+
+BAD_HYPERPARAMETERS = [
+    ("pso", {"pop_size": 0}, "pso: pop_size must be an integer >= 2, got 0"),
+    ("pso", {"pop_size": -5}, "pso: pop_size must be an integer >= 2, got -5"),
+    ("pso", {"pop_size": 1}, "pso: pop_size must be an integer >= 2, got 1"),
+    ("pso", {"pop_size": 1.5}, "pso: pop_size must be an integer >= 2, got 1.5"),
+    ("pso", {"w": "abc"}, "pso: w must be a number in [0, inf), got 'abc'"),
+    ("ga", {"pop_size": 1.5}, "ga: pop_size must be an integer >= 2, got 1.5"),
+    ("cmaes", {"population_size": 1}, "cmaes: population_size must be an integer >= 2, got 1"),
+    ("cmaes", {"sigma0": 0}, "cmaes: sigma0 must be a number in (0, inf), got 0"),
+    ("random", {"batch_size": 0}, "random: batch_size must be an integer >= 1, got 0"),
+    ("tpe", {"batch_size": 0}, "tpe: batch_size must be an integer >= 1, got 0"),
+    ("one_plus_one", {"batch_size": 0}, "one_plus_one: batch_size must be an integer >= 1, got 0"),
+    ("psoga", {"pop_size": 7}, "psoga: pop_size must be an even integer >= 2, got 7"),
+    ("psoga", {"stop_rule": "never"}, "psoga: stop_rule must be one of patience, paper, none, got 'never'"),
+    ("nevergrad", {"num_workers": True}, "nevergrad: num_workers must be an integer >= 1, got True"),
+    ("lbfgsb", {"fd_step": 0.5}, "lbfgsb: fd_step must be a number in (0, 0.5), got 0.5"),
+    ("nelder_mead", {"maxfev": 0}, "nelder_mead: maxfev must be an integer >= 1, got 0"),
+]
+
+
+@pytest.mark.parametrize("name, params, message", BAD_HYPERPARAMETERS)
+def test_bad_hyperparameters_are_refused_naming_key_and_range(name, params, message):
+    with pytest.raises(OptimizerError) as err:
+        registry.get(name)(LOWER, UPPER, seed=0, x0=X0, **params)
+    assert str(err.value) == message
 
 
 def test_plugin_modules_import_their_libraries_lazily():
