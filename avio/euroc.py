@@ -36,6 +36,11 @@ What the loader does, and why:
   ~1-2 mrad/s (the figures: scripts/check_euroc.py). The accelerometer bias defaults to zero
   (``accel_bias_init="zero"``): the ground-truth one drifts 0.03 -> 0.20 m/s^2 over the 30 s
   and did not help consistently (data README); ``"ground_truth"`` is available.
+- Nominal for calibration experiments: with ``nominal_perturbation`` (an
+  avio.kitti00.CalibrationPerturbation or its fields) the sequence's reference calibration (the
+  one a user starts from) is Kalibr plus that offset and ``truth_calibration`` is Kalibr: the
+  trusted target-based calibration plays the truth, so calibration errors are against Kalibr.
+  Without it the reference is Kalibr and the truth unknown (None).
 - Tracks: features seen in three consecutive frames (avio.tracks), optionally at most
   ``max_features`` per triplet by bucketing; ~1.6 % of the observations are gross outliers
   (up to 760 px), kept: rejecting them is the filter's job.
@@ -43,7 +48,8 @@ What the loader does, and why:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
@@ -53,6 +59,7 @@ import pandas as pd
 import yaml
 from scipy.spatial.transform import Rotation
 
+from avio.kitti00 import CalibrationPerturbation, read_numeric_table
 from avio.sequence import (
     Calibration,
     GroundTruth,
@@ -266,8 +273,6 @@ def read_euroc(data_dir: str | Path = DEFAULT_DATA_DIR, gt_tolerance_s: float = 
 
 @lru_cache(maxsize=2)
 def _read_euroc(data_dir: Path, signature: tuple, gt_tolerance_s: float) -> EurocRaw:
-    from avio.kitti00 import read_numeric_table  # the shared numeric-table reader
-
     calibration, image_size = read_camchain(data_dir / CAMCHAIN_FILE)
     imu_noise = read_imu_noise(data_dir / IMU_CHAIN_FILE)
     path = data_dir / FEATURES_FILE
@@ -405,6 +410,7 @@ def load_euroc(
     *,
     max_features: int | None = None,
     seed: int = 0,
+    nominal_perturbation: CalibrationPerturbation | Mapping | None = None,
     gyro_bias_init: Literal["ground_truth", "standstill", "zero"] = "ground_truth",
     accel_bias_init: Literal["ground_truth", "zero"] = "zero",
     standstill_speed_mps: float = 0.02,
@@ -417,8 +423,8 @@ def load_euroc(
     Real 200 Hz IMU covering the frames (an error if it does not, or has a gap over
     ``max_imu_gap_s``); ground truth at each frame in the window's world (module doc); real
     tracks in pixels over consecutive triplets, at most ``max_features`` per triplet (None: all)
-    chosen by bucketing with ``seed``; reference calibration = Kalibr cam0, truth calibration
-    None (unknown for real data); image size and IMU noise from the Kalibr files; initial biases
+    chosen by bucketing with ``seed``; reference calibration = Kalibr cam0 and truth calibration
+    None, or with ``nominal_perturbation`` reference = Kalibr + it and truth = Kalibr; image size and IMU noise from the Kalibr files; initial biases
     by ``gyro_bias_init`` / ``accel_bias_init`` (module doc). ``meta["content_hash"]`` identifies
     everything a filter run reads. Raises EurocDataError naming the file and line, the key or the
     window, before building.
@@ -426,6 +432,11 @@ def load_euroc(
     from avio.tracks import TracksError, triplets_from_observations
 
     source = str(Path(data_dir))
+    if isinstance(nominal_perturbation, Mapping):  # e.g. straight from a config file
+        try:
+            nominal_perturbation = CalibrationPerturbation(**nominal_perturbation)
+        except TypeError as err:
+            raise EurocDataError(f"nominal_perturbation: {err}") from None
     if gyro_bias_init not in ("ground_truth", "standstill", "zero"):
         raise EurocDataError(f"gyro_bias_init must be 'ground_truth', 'standstill' or 'zero', "
                              f"got {gyro_bias_init!r}")
@@ -461,9 +472,13 @@ def load_euroc(
         )
     except TracksError as err:
         raise EurocDataError(f"{Path(data_dir) / FEATURES_FILE}: {err}") from err
+    reference, truth_cal = cal[0], None
+    if nominal_perturbation is not None:
+        reference, truth_cal = nominal_perturbation.apply(cal), cal[0]
+        meta["nominal_perturbation"] = asdict(nominal_perturbation)
     seq = Sequence(
         name=f"euroc_v1_01_{t_first_s:g}_{t_last_s:g}", imu=imu, frame_t_s=frame_t, truth=truth,
-        reference_calibration=cal[0], image_size_px=raw.image_size_px, tracks=tracks,
+        reference_calibration=reference, truth_calibration=truth_cal, image_size_px=raw.image_size_px, tracks=tracks,
         gravity_world_mps2=np.array([0.0, 0.0, -GRAVITY_MPS2]), imu_noise=raw.imu_noise,
         initial_gyro_bias_radps=b_g, initial_accel_bias_mps2=b_a, meta=meta,
     )
@@ -493,12 +508,12 @@ def _initial_gyro_bias(raw: EurocRaw, imu: ImuSamples, first: int, last: int, mo
 
 def _with_hash(seq: Sequence) -> Sequence:
     """Record the content hash of everything a filter run reads in ``meta["content_hash"]``."""
-    cal = seq.reference_calibration
     zero = np.zeros(3)
+    calibrations = [seq.reference_calibration] + ([] if seq.truth_calibration is None else [seq.truth_calibration])
     arrays = [seq.imu.t_s, seq.imu.accel_imu_mps2, seq.imu.gyro_imu_radps, seq.frame_t_s,
               seq.truth.p_world_imu_m, seq.truth.R_world_imu, seq.truth.v_world_imu_mps,
               seq.tracks.frame_index, seq.tracks.uv_px, seq.tracks.valid,
-              cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.R_cam_imu, cal.p_imu_cam_m,
+              *(getattr(c, k) for c in calibrations for k in Calibration.__dataclass_fields__),
               seq.gravity_world_mps2,
               zero if seq.initial_gyro_bias_radps is None else seq.initial_gyro_bias_radps,
               zero if seq.initial_accel_bias_mps2 is None else seq.initial_accel_bias_mps2]

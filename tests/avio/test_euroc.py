@@ -22,7 +22,7 @@ from avio.euroc import (
     read_imu_noise,
     read_kalibr_yaml,
 )
-from avio.geometry import so3_log
+from avio.geometry import geodesic_angle_deg, so3_log
 from avio.measurement import relative_poses, triplet_residuals
 from avio.sequence import Calibration, ImuSamples
 
@@ -308,3 +308,20 @@ def test_kalibr_yaml_errors_name_file_line_and_key(tmp_path):
         read_imu_noise(path)
     with pytest.raises(EurocDataError, match="EuRoC data folder not found"):
         load_euroc(tmp_path / "absent")
+
+
+@pytest.mark.data
+def test_a_nominal_perturbation_makes_kalibr_the_truth(euroc_dir, flight):
+    seq = load_euroc(euroc_dir, 0.0, 30.0, nominal_perturbation={
+        "d_intrinsics_px": (3.0, -2.0, 4.0, -3.0), "d_rotvec_cam_rad": (0.0, 0.0, 0.01),
+        "d_p_imu_cam_m": (0.02, 0.0, 0.0)})
+    kalibr = flight.reference_calibration
+    for name in Calibration.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(seq.truth_calibration, name), getattr(kalibr, name))
+    angle = geodesic_angle_deg(seq.truth_calibration.R_cam_imu, seq.reference_calibration.R_cam_imu)
+    np.testing.assert_allclose(angle, np.degrees(0.01), rtol=1e-6)
+    assert seq.reference_calibration.fx_px[0] == kalibr.fx_px[0] + 3.0
+    np.testing.assert_allclose(seq.reference_calibration.p_imu_cam_m[0] - kalibr.p_imu_cam_m[0], [0.02, 0, 0])
+    assert seq.meta["content_hash"] != flight.meta["content_hash"]
+    with pytest.raises(EurocDataError, match="nominal_perturbation"):
+        load_euroc(euroc_dir, 0.0, 30.0, nominal_perturbation={"d_focal": 1.0})
