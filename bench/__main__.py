@@ -1,10 +1,13 @@
-"""``python -m bench [overrides]``: validate every job, then run the sweep with Hydra.
+"""``python -m bench [overrides]`` (or ``avio-bench``): validate every job, then run the sweep with Hydra.
 
 Examples::
 
     python -m bench                                   # the default comparison
     python -m bench optimizer=psoga,pso,cmaes seed='range(10)'
     python -m bench problem=rastrigin budget.evals=500 hydra.sweep.dir=runs/mine   # resumable folder
+
+Exit codes: 0 every job ok; 1 some job failed (the last lines say which); 2 invalid input,
+nothing run or written.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import threading
+import time
 import uuid
 from pathlib import Path
 
@@ -19,8 +24,9 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from bench import callbacks
 from bench.job import plain, run_configured_job
-from bench.preflight import preflight
+from bench.preflight import CONF_DIR, preflight_plan
 
 log = logging.getLogger("bench")
 
@@ -29,23 +35,107 @@ log = logging.getLogger("bench")
 OmegaConf.register_new_resolver("bench_unique", lambda: f"{os.getpid()}-{uuid.uuid4().hex[:6]}",
                                 use_cache=True, replace=True)
 
+_watching = threading.Event()
+
+
+def _exit_with_the_sweep() -> None:
+    """In a launcher's worker process: exit as soon as the sweep's main process is gone.
+
+    joblib's (loky) and submitit's workers would otherwise run their job to the end after the
+    sweep was killed, writing into a folder the user believes idle.
+    """
+    sweep_pid = int(os.environ.get("BENCH_SWEEP_PID") or 0)
+    if not sweep_pid or sweep_pid == os.getpid() or _watching.is_set():
+        return
+    _watching.set()
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(sweep_pid, 0)
+                alive = os.getppid() == parent
+            except ProcessLookupError:
+                alive = False
+            except PermissionError:  # exists, owned by someone else: not ours any more
+                alive = False
+            if not alive:
+                print(f"bench worker {os.getpid()}: the sweep (pid {sweep_pid}) is gone; exiting",
+                      file=sys.stderr, flush=True)
+                os._exit(3)
+
+    threading.Thread(target=watch, daemon=True, name="bench-sweep-watch").start()
+
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def _job(cfg: DictConfig) -> float | None:
+    _exit_with_the_sweep()
     hc = HydraConfig.get()
     job_dir = Path(hc.runtime.output_dir)
-    label = f"job #{hc.job.num} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
-    log.info("%s -> %s", label, job_dir)
-    record = run_configured_job(plain(cfg), job_dir, label=label)
-    return record.get("best_f")
+    total = os.environ.get("BENCH_SWEEP_JOBS") or "?"
+    label = f"job {hc.job.num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
+    print(f"{label} -> {job_dir}", file=sys.stderr, flush=True)
+    outcome = run_configured_job(plain(cfg), job_dir, label=label)
+    callbacks.note_outcome(Path(hc.sweep.dir), hc.job.num, label, outcome)
+    return outcome.get("best_f") if outcome.get("status") == "ok" else None
+
+
+def help_text() -> str:
+    """``--help``: the problems, optimisers and default sweep (read from the registries and config.yaml)."""
+    import optimizers
+    from bench import problems
+
+    primary = OmegaConf.load(CONF_DIR / "config.yaml")
+    sweep = OmegaConf.to_container(primary.hydra.sweeper.params)
+    defaults = {k: v for d in primary.defaults if isinstance(d, dict) for k, v in d.items()}
+    problem_yamls = sorted(p.stem for p in (CONF_DIR / "problem").glob("*.yaml"))
+    return "\n".join([
+        "avio-bench (python -m bench): calibrate a visual-inertial odometry with black-box optimisers.",
+        "",
+        "Usage: avio-bench [key=value ...]     a Hydra app in MULTIRUN mode: a,b,c and range(n) sweep",
+        "",
+        f"Problems   (problem=...):   {', '.join(problem_yamls)}",
+        f"Optimisers (optimizer=...): {', '.join(optimizers.available())}",
+        f"Registered problem classes: {', '.join(problems.available())}",
+        "",
+        f"Default sweep: problem={defaults.get('problem')}, "
+        + ", ".join(f"{k}={v}" for k, v in sweep.items())
+        + f", budget.evals={primary.budget.evals}, budget.seconds={primary.budget.seconds}",
+        "",
+        "Examples:",
+        "  avio-bench optimizer=psoga,pso,cmaes seed='range(10)' budget.evals=500",
+        "  avio-bench problem=sphere optimizer=random hydra.sweep.dir=runs/mine   # a fixed folder resumes",
+        "  avio-bench hydra/launcher=joblib hydra.launcher.n_jobs=4",
+        "",
+        "Every job is validated before any work (exit 2 with one message); a job that fails is recorded",
+        "and the sweep goes on (exit 1 at the end). Records: <sweep>/<problem>/<optimizer>/seed<k>/.",
+        "",
+        "More: --cfg job (the composed config), --hydra-help (Hydra's flags),",
+        "      --shell-completion install=bash (tab completion), README.md.",
+    ])
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
-    code = preflight(argv)
+    """The console entry point (``avio-bench``); ``argv`` defaults to ``sys.argv[1:]``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if any(a in ("--help", "-h") for a in argv):
+        print(help_text())
+        return
+    code, plan = preflight_plan(argv)
     if code:
         raise SystemExit(code)
-    _job()
+    os.environ["BENCH_SWEEP_PID"] = str(os.getpid())
+    os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""
+    callbacks.LAST_SWEEP.clear()
+    saved = sys.argv
+    sys.argv = [saved[0] if saved else "avio-bench", *argv]  # Hydra parses sys.argv
+    try:
+        _job()
+    finally:
+        sys.argv = saved
+    if callbacks.LAST_SWEEP.get("n_failed"):
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":

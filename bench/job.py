@@ -9,15 +9,22 @@ import functools
 import importlib
 import json
 import logging
+import math
+import re
+import sys
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 import optimizers
 from bench import problems
-from bench.run import Budget, RunError, job_key, run_job
+from bench.run import Budget, JobFolderError, RunError, job_key, record_failure, run_job
 
 log = logging.getLogger(__name__)
+
+# settings that change how a job is shown, not what it computes: left out of its identity
+PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra")
+_MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
 class ConfigError(ValueError):
@@ -25,8 +32,19 @@ class ConfigError(ValueError):
 
 
 def import_plugins(cfg: dict) -> None:
-    """Import the modules listed in ``plugins`` so their ``@register`` decorators run."""
-    for module in cfg.get("plugins") or []:
+    """Import the modules listed in ``plugins`` so their ``@register`` decorators run.
+
+    ``plugins`` must be a list of absolute module names (``pkg.module``); config is trusted code,
+    so they are imported as they are, but nothing else in a job folder ever is.
+    """
+    modules = cfg.get("plugins")
+    if modules is None:
+        return
+    if not isinstance(modules, (list, tuple)):
+        raise ConfigError(f"plugins must be a list of module names, got {modules!r}")
+    for module in modules:
+        if not isinstance(module, str) or not _MODULE.fullmatch(module):
+            raise ConfigError(f"plugins: {module!r} is not an absolute module name (like mypackage.my_optimizer)")
         try:
             importlib.import_module(module)
         except ImportError as err:
@@ -41,23 +59,36 @@ def plain(cfg: DictConfig) -> dict:
 
 
 def budget_of(cfg: dict) -> Budget:
-    b = cfg.get("budget") or {}
+    b = cfg.get("budget")
+    if not isinstance(b, dict):
+        raise ConfigError(f"budget must be a section with evals and seconds, got {b!r}")
+    unknown = sorted(set(b) - {"evals", "seconds"})
+    if unknown:
+        raise ConfigError(f"budget: unknown setting(s) {unknown}; valid: evals, seconds")
     try:
         return Budget(evals=b.get("evals"), seconds=b.get("seconds"))
     except RunError as err:
         raise ConfigError(str(err)) from None
 
 
+def seed_of(cfg: dict) -> int:
+    seed = cfg.get("seed")
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**63:
+        raise ConfigError(f"seed must be an integer in [0, 2**63), got {seed!r}")
+    return seed
+
+
+def progress_every_s_of(cfg: dict) -> float:
+    value = cfg.get("progress_every_s", 5.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"progress_every_s must be a positive number of seconds, got {value!r}")
+    return float(value)
+
+
 def identity_of(cfg: dict) -> dict:
-    """What defines a job: resuming or skipping compares this, nothing else."""
-    return {
-        "problem": cfg["problem"]["name"],
-        "problem_params": cfg["problem"].get("params") or {},
-        "optimizer": cfg["optimizer"]["name"],
-        "optimizer_params": cfg["optimizer"].get("params") or {},
-        "seed": cfg["seed"],
-        "budget": cfg.get("budget"),
-    }
+    """What defines a job: the whole resolved config but its presentation settings
+    (``PRESENTATION_KEYS``). Resuming or skipping compares this (with the data and the code)."""
+    return {k: v for k, v in cfg.items() if k not in PRESENTATION_KEYS}
 
 
 @functools.lru_cache(maxsize=8)
@@ -74,7 +105,11 @@ def build_problem(cfg: dict):
 
 
 def optimizer_factory(cfg: dict, space):
-    """A function building the configured optimiser on ``space`` from the job's seed."""
+    """A function building the configured optimiser on ``space`` from the job's seed.
+
+    The harness passes ``(lower, upper, seed=seed, x0=reference, **params)``: lower/upper (d,)
+    bounds, the job's seed (int >= 0), x0 the space's reference point (d,) and the yaml's params.
+    """
     cls = optimizers.get(cfg["optimizer"]["name"])
     params = cfg["optimizer"].get("params") or {}
     seed = int(cfg["seed"])
@@ -82,26 +117,42 @@ def optimizer_factory(cfg: dict, space):
 
 
 def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
-    """Run one composed job config into ``job_dir``; failures are recorded, not raised."""
-    identity = identity_of(cfg)
-    import_plugins(cfg)
-    try:
-        problem = build_problem(cfg)
-    except Exception as exc:  # noqa: BLE001 - a problem that cannot be built fails this job only
-        from bench.run import record_failure
+    """Run one composed job config into ``job_dir`` and return its outcome; never raises.
 
-        log.error("%s: problem %r failed to build: %s", label, identity["problem"], exc)
-        return record_failure(job_dir, identity, cfg, exc)
-    return run_job(
-        problem,
-        optimizer_factory(cfg, problem.space),
-        budget_of(cfg),
-        job_dir,
-        identity,
-        config=cfg,
-        label=label,
-        progress_every_s=float(cfg.get("progress_every_s", 5.0)),
-    )
+    The outcome is the record (``status`` "ok" or "failed") or, when the job could not be run or
+    its folder not written, ``{"status": "refused" | "failed", "error": {"type", "message"},
+    "job_dir": ...}`` with nothing written to the folder.
+    """
+    identity = identity_of(cfg)
+    try:
+        import_plugins(cfg)
+        print(f"{label}: building problem {cfg['problem']['name']}", file=sys.stderr, flush=True)
+        try:
+            problem = build_problem(cfg)
+        except Exception as exc:  # noqa: BLE001 - a problem that cannot be built fails this job only
+            log.error("%s: problem %r failed to build: %s", label, cfg["problem"].get("name"), exc)
+            return record_failure(job_dir, identity, cfg, exc)
+        return run_job(
+            problem,
+            optimizer_factory(cfg, problem.space),
+            budget_of(cfg),
+            job_dir,
+            identity,
+            config=cfg,
+            label=label,
+            progress_every_s=progress_every_s_of(cfg),
+            optimizer_class=optimizers.get(cfg["optimizer"]["name"]),
+            progress=bool(cfg.get("progress", True)),
+        )
+    except JobFolderError as err:
+        log.error("%s failed: %s", label, err)
+        return {"status": "failed", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
+    except (RunError, ConfigError) as err:
+        log.error("%s refused: %s", label, err)
+        return {"status": "refused", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
+    except Exception as err:  # noqa: BLE001 - reported as this job's failure; the sweep goes on
+        log.exception("%s failed outside its run loop", label)
+        return {"status": "failed", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
 
 
 __all__ = ["ConfigError", "build_problem", "budget_of", "identity_of", "job_key", "plain", "run_configured_job"]

@@ -1,17 +1,22 @@
-"""Validate every job of a sweep before any work starts.
+"""Validate every job of a sweep before any work starts, and before Hydra writes anything.
 
 Hydra composes and launches jobs one by one, so a typo in the fifth optimiser name, a budget
 of 0 or a missing data file would surface only after the first jobs ran. Here the command
 line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
-with Hydra's compose API, and each is checked: registered names, budget, seed, no NaN, the
-problem's own cheap checks (its search space, its data files). The first problem found is
-one clear message and exit code 2.
+with Hydra's compose API, and each is checked: registered names, plugins, budget, seed,
+progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``: its search
+space, its data files), the optimiser built on the job's space with its hyperparameters (and
+asked once), the sweep folder (a writable folder), and every job folder that already exists
+(it must hold this very job — same resolved config — and not be in use by another process).
+The first problem found is one clear message and exit code 2; nothing has been written.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hydra import compose, initialize_config_dir
@@ -20,14 +25,27 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 import optimizers
 from bench import problems
-from bench.job import ConfigError, budget_of, import_plugins
+from bench.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
+from bench.records import EVAL_LOG, RECORD, RecordError, lock_holder, read_job_file, read_record
+from bench.run import config_hash, identity_differences
+from bench.space import Space
 
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 _HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
                              "--shell-completion", "-sc", "--resolve"}
+
+
+@dataclass
+class SweepPlan:
+    """What preflight found: the number of distinct jobs, the sweep folder (when it could be resolved)."""
+
+    n_jobs: int = 0
+    sweep_dir: Path | None = None
+    job_dirs: list[Path] = field(default_factory=list)
 
 
 def expand_jobs(argv: list[str]) -> list[list[str]]:
@@ -46,6 +64,57 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     return BasicSweeper.split_arguments(parsed, None)[0]
 
 
+def _space_for(cfg: dict, checked) -> Space:
+    """The job's search space: what ``Problem.preflight`` returned when it is a Space, else the
+    built problem's for problems without a preflight (cheap ones), else the paper's Table 1 box
+    (the optimiser is then checked on a space of the default dimension)."""
+    if isinstance(checked, Space):
+        return checked
+    if isinstance(getattr(checked, "space", None), Space):
+        return checked.space
+    if checked is _NO_PREFLIGHT:
+        from bench.job import build_problem
+
+        try:
+            return build_problem(cfg).space
+        except (ValueError, OSError, TypeError) as err:
+            raise ConfigError(f"problem={cfg['problem']['name']}: {err}") from None
+    from bench.problems.analytic import paper_box_space
+
+    return paper_box_space()
+
+
+_NO_PREFLIGHT = object()
+
+
+def check_optimizer(cfg: dict, space: Space) -> None:
+    """Build the job's optimiser on ``space`` exactly as a job does, and ask it once."""
+    name = cfg["optimizer"]["name"]
+    params = cfg["optimizer"].get("params") or {}
+    if not isinstance(params, dict):
+        raise ConfigError(f"optimizer.params must be a section of hyperparameters, got {params!r}")
+    cls = optimizers.get(name)
+    try:
+        opt = cls(space.lower, space.upper, seed=int(cfg["seed"]), x0=space.reference, **params)
+    except optimizers.OptimizerError as err:
+        raise ConfigError(f"optimizer.params: {err}") from None
+    except TypeError as err:
+        raise ConfigError(f"optimizer={name}: cannot be built as {cls.__name__}(lower, upper, seed=, x0=, "
+                          f"**params) with params {sorted(params)}: {err}") from None
+    except (ValueError, ArithmeticError) as err:
+        raise ConfigError(f"optimizer={name} with params {params}: {type(err).__name__}: {err}") from None
+    try:
+        X = opt.ask()
+    except (optimizers.OptimizerError, ValueError, ArithmeticError, TypeError) as err:
+        raise ConfigError(f"optimizer={name} with params {params}: its first ask() fails: "
+                          f"{type(err).__name__}: {err}") from None
+    finally:
+        close = getattr(opt, "close", None)
+        if callable(close):
+            close()
+    space.check(X)
+
+
 def check_job(cfg: dict) -> None:
     """Raise ConfigError if one composed job config is invalid."""
     _check_finite(cfg, "")
@@ -57,15 +126,17 @@ def check_job(cfg: dict) -> None:
     if pname not in problems.available():
         raise ConfigError(f"problem={pname!r} is not registered; valid names: {', '.join(problems.available())}")
     budget_of(cfg)
-    if not isinstance(cfg.get("seed"), int) or isinstance(cfg.get("seed"), bool):
-        raise ConfigError(f"seed must be an integer, got {cfg.get('seed')!r}")
+    seed_of(cfg)
+    progress_every_s_of(cfg)
     factory = problems.get(pname)
     checker = getattr(factory, "preflight", None)
+    checked = _NO_PREFLIGHT
     if checker is not None:
         try:
-            checker(**(cfg["problem"].get("params") or {}))
+            checked = checker(**(cfg["problem"].get("params") or {}))
         except (ValueError, OSError, TypeError) as err:
             raise ConfigError(f"problem={pname}: {err}") from None
+    check_optimizer(cfg, _space_for(cfg, checked))
 
 
 def _check_finite(node, path: str) -> None:
@@ -79,30 +150,129 @@ def _check_finite(node, path: str) -> None:
         raise ConfigError(f"{path} is {node}: numbers in the config must be finite")
 
 
-def preflight(argv: list[str]) -> int:
-    """Validate every job the command line would run; 0 if all are valid, else print why and return 2."""
-    if any(a.split("=")[0] in _HYDRA_FLAGS_WITHOUT_JOBS for a in argv):
-        return 0
+def _writable(folder: Path) -> bool:
+    """Whether a file can be created in ``folder`` (a real probe: os.access says yes to root on read-only mounts)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".bench-probe-"):
+            return True
+    except OSError:
+        return False
+
+
+def check_sweep_dir(sweep_dir: Path) -> None:
+    """The sweep folder must be a folder (or not exist yet) in a place that can be written."""
+    if sweep_dir.exists() and not sweep_dir.is_dir():
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir} is a file, not a folder")
+    existing = sweep_dir
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir}: {existing} is a file, not a folder")
+    if not _writable(existing):
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir}: cannot write in {existing} (read-only or no permission)")
+    holder = lock_holder(sweep_dir)
+    if holder:
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir} is in use by another sweep ({holder}); two sweeps in one "
+                          "folder would run the same jobs twice: wait for it to end or choose another folder")
+
+
+def check_job_dir(job_dir: Path, cfg: dict) -> None:
+    """An existing job folder must hold this job (same resolved config) and be free."""
+    if not job_dir.exists():
+        return
+    if not job_dir.is_dir():
+        raise ConfigError(f"job folder {job_dir} is a file, not a folder")
+    holder = lock_holder(job_dir)
+    if holder:
+        raise ConfigError(f"job folder {job_dir} is in use by {holder}; wait for it to end or choose another "
+                          "hydra.sweep.dir")
+    identity = identity_of(cfg)
+    try:
+        header = read_job_file(job_dir)
+        record = read_record(job_dir)
+    except RecordError:
+        return  # a corrupt file fails that job alone, with its message, when it runs
+    old = (header or {}).get("identity") if header else (record or {}).get("identity")
+    old_hash = (header or {}).get("config_hash") if header else (record or {}).get("config_hash")
+    log_size = (job_dir / EVAL_LOG).stat().st_size if (job_dir / EVAL_LOG).exists() else 0
+    if old_hash is None:
+        if log_size or (record is not None and record.get("status") == "ok"):
+            raise ConfigError(f"job folder {job_dir} holds results without a job identity (an older version "
+                              f"wrote them), so they cannot be checked against this config; choose another "
+                              "hydra.sweep.dir or move them away")
+        return
+    if old_hash != config_hash(identity) and (log_size or (record is not None and record.get("status") == "ok")):
+        diff = identity_differences(old or {}, identity) or "another config"
+        raise ConfigError(f"job folder {job_dir} holds a job with other settings ({diff}); resuming or skipping it "
+                          "would mix results: restore the settings or choose another hydra.sweep.dir")
+
+
+def _hydra_overrides(argv: list[str]) -> list[str]:
+    return [a for a in argv if not a.startswith("-") and a.lstrip("+~").startswith("hydra")
+            and "=" in a and not a.startswith(("hydra/", "hydra.launcher", "hydra.sweeper", "hydra.callbacks"))]
+
+
+def _job_dir(job_overrides: list[str], hydra_overrides: list[str]) -> tuple[Path | None, Path | None]:
+    """(sweep dir, job dir) as Hydra will resolve them; None where they cannot be resolved here
+    (a subdir template that uses Hydra's runtime values)."""
+    try:
+        hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
+        sweep = OmegaConf.select(hcfg, "hydra.sweep.dir", throw_on_resolution_failure=True)
+    except (OmegaConfBaseException, HydraException, ValueError):
+        return None, None
+    try:
+        sub = OmegaConf.select(hcfg, "hydra.sweep.subdir", throw_on_resolution_failure=True)
+    except (OmegaConfBaseException, ValueError):
+        return Path(str(sweep)), None
+    return Path(str(sweep)), (Path(str(sweep)) / str(sub) if sub is not None else None)
+
+
+def plan(argv: list[str]) -> SweepPlan:
+    """Validate every job the command line would run; raise ConfigError/HydraException at the first problem."""
     GlobalHydra.instance().clear()
+    result = SweepPlan()
     seen: set[str] = set()
+    hydra_overrides = _hydra_overrides(argv)
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
             for job_overrides in expand_jobs(argv):
                 cfg = OmegaConf.to_container(compose("config", overrides=job_overrides), resolve=True)
-                key = json.dumps({k: cfg[k] for k in ("problem", "optimizer", "budget", "seed")}, sort_keys=True,
-                                 default=str)
+                key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
                 if key not in seen:
                     seen.add(key)
                     check_job(cfg)
-    except ConfigError as err:
-        print(f"error: {err}")
-        return 2
-    except HydraException as err:
-        print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}")
-        return 2
+                result.n_jobs += 1
+                sweep_dir, job_dir = _job_dir(job_overrides, hydra_overrides)
+                if sweep_dir is not None and result.sweep_dir is None:
+                    result.sweep_dir = sweep_dir
+                    check_sweep_dir(sweep_dir)
+                if job_dir is not None:
+                    check_job_dir(job_dir, cfg)
+                    result.job_dirs.append(job_dir)
     finally:
         GlobalHydra.instance().clear()
-    return 0
+    return result
+
+
+def preflight(argv: list[str]) -> int:
+    """Validate every job the command line would run; 0 if all are valid, else print why and return 2."""
+    code, _ = preflight_plan(argv)
+    return code
+
+
+def preflight_plan(argv: list[str]) -> tuple[int, SweepPlan | None]:
+    """``(exit code, plan)``: 0 and the plan when every job is valid; 2 and None after printing the reason."""
+    if any(a.split("=")[0] in _HYDRA_FLAGS_WITHOUT_JOBS for a in argv):
+        return 0, None
+    try:
+        return 0, plan(argv)
+    except ConfigError as err:
+        print(f"error: {err}")
+    except HydraException as err:
+        print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}")
+    except OmegaConfBaseException as err:
+        print(f"error: {str(err).splitlines()[0]}")
+    return 2, None
 
 
 def compose_job(overrides: list[str]) -> dict:
@@ -113,3 +283,6 @@ def compose_job(overrides: list[str]) -> dict:
             return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
     finally:
         GlobalHydra.instance().clear()
+
+
+__all__ = ["SweepPlan", "check_job", "compose_job", "expand_jobs", "plan", "preflight", "preflight_plan"]

@@ -8,15 +8,23 @@ A job folder holds
   ``repr`` so they read back bit-for-bit.
 - ``record.json``: the final record, written atomically (temp file + rename), with
   ``status`` "ok" or "failed"; see ``bench.run`` for its fields.
+- ``job.json``: the job's identity, written before the first batch is logged: the hash of the
+  resolved job config, the config itself, the problem's data identity and the code version
+  (``bench.run.job_header``). A log is only ever resumed by the job that wrote it.
+- ``.lock``: the lock file one process holds (``fcntl.flock``) for the job's whole lifetime;
+  it names the holder (pid, host, start time).
 
-Records are plain JSON: nothing is ever unpickled.
+Records, logs and caches are data: they are parsed as JSON, never imported, unpickled or instantiated.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import socket
 import tempfile
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +33,9 @@ import pandas as pd
 
 EVAL_LOG = "evals.jsonl"
 RECORD = "record.json"
+JOB_FILE = "job.json"
+LOCK_FILE = ".lock"
+FILE_MODE = 0o644  # like every other file the harness writes (mkstemp alone gives 0600)
 
 
 class RecordError(ValueError):
@@ -49,6 +60,7 @@ def write_json_atomic(path: Path, payload: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, FILE_MODE)
         with os.fdopen(fd, "w") as fh:
             json.dump(_jsonable(payload), fh, indent=1, sort_keys=True)
             fh.flush()
@@ -96,45 +108,139 @@ class EvalLog:
             self._fh.close()
             self._fh = None
 
-    def truncate_to(self, n_batches: int) -> None:
-        """Keep only the first ``n_batches`` complete lines (drops a torn last line after a kill)."""
+    def truncate_bytes(self, size: int) -> None:
+        """Cut the file to its first ``size`` bytes: drops a torn last line after a kill, nothing else
+        (the complete lines before it are not rewritten)."""
         self.close()
-        entries = read_eval_log(self.path.parent)[:n_batches]
-        tmp = self.path.with_suffix(".jsonl.tmp")
-        with open(tmp, "w") as fh:
-            for entry in entries:
-                fh.write(json.dumps(entry, sort_keys=True) + "\n")
-        os.replace(tmp, self.path)
+        os.truncate(self.path, size)
+
+
+def scan_eval_log(job_dir: Path) -> tuple[list[dict], int, int]:
+    """``(entries, complete_bytes, file_bytes)`` of a job's log: the complete lines parsed in order,
+    the byte length they span, and the file's length (larger when the last line is torn).
+
+    A line that is not valid JSON before the last newline is corruption, not a torn write:
+    RecordError naming the file and line.
+    """
+    path = Path(job_dir) / EVAL_LOG
+    if not path.exists():
+        return [], 0, 0
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1  # the piece after the last newline is empty or a torn write
+    entries = []
+    for number, line in enumerate(data[:end].split(b"\n")[:-1], start=1):
+        try:
+            entry = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise RecordError(f"{path}:{number}: not a JSON line ({getattr(err, 'msg', err)})") from None
+        if not isinstance(entry, dict) or not {"X", "f", "t_end_s"} <= set(entry):
+            raise RecordError(f"{path}:{number}: not a batch entry (needs X, f, t_end_s)")
+        entries.append(entry)
+    return entries, end, len(data)
 
 
 def read_eval_log(job_dir: Path) -> list[dict]:
     """The batches of a job's log in order; a torn (unterminated) last line is ignored."""
-    path = Path(job_dir) / EVAL_LOG
-    if not path.exists():
-        return []
-    text = path.read_text()
-    lines = text.split("\n")
-    complete = lines[:-1]  # the piece after the last newline is empty or a torn write
-    entries = []
-    for number, line in enumerate(complete, start=1):
-        try:
-            entries.append(json.loads(line))
-        except json.JSONDecodeError as err:
-            raise RecordError(f"{path}:{number}: not a JSON line ({err.msg})") from None
-    return entries
+    return scan_eval_log(job_dir)[0]
 
 
 def read_record(job_dir: Path) -> dict | None:
-    """The final record of a job, or None when the job has not finished."""
+    """The final record of a job, or None when the job has not finished.
+
+    RecordError (naming the file) when it is not valid JSON or not a JSON object; the fields
+    are checked by their users (the run loop, the leaderboard), which name what is missing.
+    """
     path = Path(job_dir) / RECORD
     if not path.exists():
         return None
     try:
         record = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise RecordError(f"{path}: corrupt record ({err.msg} at line {err.lineno})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise RecordError(f"{path}: corrupt record ({getattr(err, 'msg', err)})") from None
+    if not isinstance(record, dict):
+        raise RecordError(f"{path}: corrupt record (not a JSON object but a {type(record).__name__})")
     record["job_dir"] = str(Path(job_dir))
     return record
+
+
+def read_job_file(job_dir: Path) -> dict | None:
+    """The job's identity (``job.json``), or None when there is none; RecordError when unreadable."""
+    path = Path(job_dir) / JOB_FILE
+    if not path.exists():
+        return None
+    try:
+        header = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise RecordError(f"{path}: corrupt job identity ({getattr(err, 'msg', err)})") from None
+    if not isinstance(header, dict) or "config_hash" not in header:
+        raise RecordError(f"{path}: corrupt job identity (no config_hash)")
+    return header
+
+
+class LockError(RuntimeError):
+    """Another process holds the lock; the message names it."""
+
+
+def lock_holder(folder: Path) -> str | None:
+    """Who holds ``folder``'s lock ("pid N on host H (since T)"), or None when it is free or absent.
+
+    Probes with a shared, non-blocking flock on a read-only descriptor: nothing is written.
+    """
+    path = Path(folder) / LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    except BlockingIOError:
+        return os.pread(fd, 512, 0).decode(errors="replace").strip() or "an unknown process"
+    finally:
+        os.close(fd)
+
+
+class FolderLock:
+    """An exclusive ``fcntl.flock`` on ``folder/.lock`` held until ``release()`` (or process exit).
+
+    ``acquire()`` never waits: when another process holds the lock it raises LockError naming the
+    holder's pid, host and start time (written into the lock file by the holder). The lock file is
+    never deleted (deleting it would let a third process lock a new inode while the old one is held).
+    """
+
+    def __init__(self, folder: Path, what: str = "job") -> None:
+        self.path = Path(folder) / LOCK_FILE
+        self.what = what
+        self._fd: int | None = None
+
+    def acquire(self) -> "FolderLock":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, FILE_MODE)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 512, 0).decode(errors="replace").strip() or "an unknown process"
+            os.close(fd)
+            raise LockError(f"{self.path.parent}: this {self.what} is in use by {holder}; wait for it to end "
+                            f"or stop it (two writers would lose or duplicate batches)") from None
+        me = (f"pid {os.getpid()} on host {socket.gethostname()} "
+              f"(since {datetime.now(timezone.utc).isoformat(timespec='seconds')})")
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, me.encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor releases the flock
+            self._fd = None
+
+    def __enter__(self) -> "FolderLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
 
 def find_job_dirs(roots) -> list[Path]:

@@ -3,16 +3,39 @@
 The only code in the harness that talks to an optimiser. It owns the budgets: evaluations
 (never over-spent: a last batch is trimmed, and a trimmed batch is not told back), wall
 seconds (checked between batches; an evaluation is never interrupted), and the optimiser's
-own stop. A job killed mid-run resumes from its log: the optimiser is rebuilt from its seed
-and fed the logged tells, which must match what it asks again (determinism is checked, not
-assumed).
+own stop.
+
+Trust rules (issue 14):
+
+- **Identity.** Before the first batch, ``job.json`` records the job's identity: the hash of its
+  resolved config, the config itself, the problem's data identity and the code version (a
+  hash of the source files that decide asks and values). A job folder is only resumed or
+  skipped by the same identity; anything else is refused (``RunError``) with nothing on disk
+  changed.
+- **One writer.** The job holds ``FolderLock`` on its folder for its whole life; a second process
+  fails fast with a message naming the holder.
+- **Replay checked, then trusted.** A killed job is resumed by rebuilding the optimiser from its
+  seed and feeding it the logged tells, which must match what it asks again, with the budget and
+  the optimiser's stop applied to every replayed batch (a log longer than the job allows is
+  refused). All of it is checked in memory first; only then is a torn last line (a kill mid-write)
+  cut off, which is the only change ever made to existing lines.
+- **Failures stay in the job.** Any error inside the job (optimiser, problem, log, I/O, a full
+  disk, a corrupt record) ends it with ``status: failed`` and the error in its record; an error
+  while closing the log never hides the first one. When the record itself cannot be written the
+  caller gets ``JobFolderError`` to report.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import json
 import logging
+import math
+import os
+import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -24,15 +47,23 @@ import numpy as np
 
 from bench.problems.base import Problem
 from bench.provenance import provenance
-from bench.records import EvalLog, read_eval_log, read_record, write_json_atomic, RECORD
+from bench.records import (JOB_FILE, RECORD, EvalLog, FolderLock, LockError, RecordError, read_job_file,
+                           read_record, scan_eval_log, write_json_atomic)
 
 log = logging.getLogger(__name__)
 
-SCHEMA = 1
+SCHEMA = 2
+ROOT = Path(__file__).resolve().parents[1]
+# the code that decides what an optimiser asks and what a problem returns; its hash is the code version
+CODE_PATHS = ("avio", "optimizers", "bench/problems", "bench/space.py", "bench/calibration_space.py")
 
 
 class RunError(RuntimeError):
-    """A job cannot run or resume as configured; the message says why."""
+    """A job cannot run or resume as configured; nothing on disk was changed; the message says why."""
+
+
+class JobFolderError(RunError):
+    """The job ran (or failed) but its folder cannot be written; the message names the folder and the error."""
 
 
 @dataclass(frozen=True)
@@ -45,30 +76,125 @@ class Budget:
     def __post_init__(self) -> None:
         if self.evals is None and self.seconds is None:
             raise RunError("budget: set budget.evals or budget.seconds (both are null)")
-        if self.evals is not None and (not isinstance(self.evals, (int, np.integer)) or self.evals < 1):
-            raise RunError(f"budget.evals must be a positive integer, got {self.evals!r}")
-        if self.seconds is not None and not (np.isfinite(self.seconds) and self.seconds > 0):
-            raise RunError(f"budget.seconds must be a positive number, got {self.seconds!r}")
+        if self.evals is not None and (isinstance(self.evals, (bool, np.bool_))
+                                       or not isinstance(self.evals, (int, np.integer)) or self.evals < 1):
+            raise RunError(f"budget.evals must be a positive integer or null, got {self.evals!r}")
+        if self.seconds is not None and (isinstance(self.seconds, (bool, np.bool_))
+                                         or not isinstance(self.seconds, (int, float, np.number))
+                                         or not (math.isfinite(self.seconds) and self.seconds > 0)):
+            raise RunError(f"budget.seconds must be a positive number or null, got {self.seconds!r}")
 
 
-def job_key(identity: dict) -> str:
-    """Short stable hash of what defines a job (problem, optimiser and params, seed, budget)."""
-    text = json.dumps(identity, sort_keys=True, default=str)
+def _hash(payload) -> str:
+    text = json.dumps(payload, sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def config_hash(identity: dict) -> str:
+    """Short stable hash of the resolved job config (``identity``)."""
+    return _hash(identity)
+
+
+def job_key(identity: dict) -> str:
+    """Short stable hash of a job's config alone (kept for scripts; records key on ``job_header``)."""
+    return config_hash(identity)
+
+
+@functools.lru_cache(maxsize=64)
+def _file_digest(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def code_version(*classes: type) -> dict:
+    """``{"sources": hash, "git_commit": ...}``: the hash covers every ``.py`` file under
+    ``CODE_PATHS`` and the files defining ``classes`` (out-of-tree plugins); the commit is informative
+    (an edit to an unrelated file must not block a resume)."""
+    files = set()
+    for rel in CODE_PATHS:
+        path = ROOT / rel
+        files.update(path.rglob("*.py") if path.is_dir() else [path] if path.exists() else [])
+    for cls in classes:
+        try:
+            files.add(Path(inspect.getsourcefile(cls)).resolve())
+        except (TypeError, OSError):  # a class without a source file (built-in, dynamic): nothing to hash
+            pass
+    digest = hashlib.sha256()
+    for path in sorted(files):
+        st = path.stat()
+        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else path.as_posix()
+        digest.update(f"{rel}\0{_file_digest(str(path), st.st_mtime_ns, st.st_size)}\n".encode())
+    return {"sources": digest.hexdigest()[:16], "git_commit": provenance()["git_commit"]}
+
+
+def job_header(identity: dict, problem: Problem, optimizer_class: type | None = None) -> dict:
+    """What ``job.json`` holds: schema, job_key, config_hash, identity (the resolved config),
+    data (``problem.identity``), code (``code_version``)."""
+    classes = [type(problem)] + ([optimizer_class] if optimizer_class is not None else [])
+    header = {"schema": SCHEMA, "config_hash": config_hash(identity), "identity": identity,
+              "data": problem.identity, "code": code_version(*classes)}
+    header["job_key"] = _hash([header["config_hash"], header["data"], header["code"]["sources"]])
+    return json.loads(json.dumps(header, default=str))  # as it reads back from disk
+
+
+def _flatten(node, prefix: str = "") -> dict:
+    if isinstance(node, dict):
+        out = {}
+        for key, value in node.items():
+            out.update(_flatten(value, f"{prefix}.{key}" if prefix else str(key)))
+        return out or {prefix: {}}
+    return {prefix: node}
+
+
+def identity_differences(old: dict, new: dict, limit: int = 6) -> str:
+    """``key: old -> new`` for the settings that differ between two identities (at most ``limit``)."""
+    a, b = _flatten(old), _flatten(new)
+    keys = sorted(k for k in set(a) | set(b) if a.get(k, "<unset>") != b.get(k, "<unset>"))
+    parts = [f"{k}: {a.get(k, '<unset>')!r} -> {b.get(k, '<unset>')!r}" for k in keys[:limit]]
+    return ", ".join(parts) + (f" (+{len(keys) - limit} more)" if len(keys) > limit else "")
+
+
+def header_mismatch(old: dict, new: dict) -> str | None:
+    """Why a folder's ``job.json`` (old) is not this job (new), or None when it is."""
+    if old.get("config_hash") != new["config_hash"]:
+        return "its config differs: " + (identity_differences(old.get("identity") or {}, new["identity"])
+                                         or f"hash {old.get('config_hash')} != {new['config_hash']}")
+    if old.get("data") != new["data"]:
+        return f"its data differ: {identity_differences(old.get('data') or {}, new['data'])}"
+    if (old.get("code") or {}).get("sources") != new["code"]["sources"]:
+        return (f"the code that asks and scores points changed (sources {(old.get('code') or {}).get('sources')} "
+                f"at {(old.get('code') or {}).get('git_commit')} -> {new['code']['sources']} at "
+                f"{new['code']['git_commit']})")
+    return None
+
+
 class _Progress:
-    """Logs a job's progress at most every ``every_s`` seconds (and at the end)."""
+    """A tqdm bar per job on stderr: evaluations (of the budget), best f, rate and ETA.
 
-    def __init__(self, label: str, budget: Budget, every_s: float) -> None:
-        self.label, self.budget, self.every_s = label, budget, every_s
-        self._last, self._last_n = -np.inf, -1
+    A timer redraws it every ``every_s`` seconds even while one batch runs long, so no phase
+    of the run loop is silent for longer than that.
+    """
 
-    def __call__(self, n_evals: int, best_f: float, elapsed_s: float, force: bool = False) -> None:
-        if (force and n_evals != self._last_n) or elapsed_s - self._last >= self.every_s:
-            self._last, self._last_n = elapsed_s, n_evals
-            of = f"/{self.budget.evals}" if self.budget.evals else ""
-            log.info("%s: %d%s evals, best f %.6g, %.1f s", self.label, n_evals, of, best_f, elapsed_s)
+    def __init__(self, label: str, budget: Budget, every_s: float, enabled: bool, initial: int = 0) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=budget.evals, initial=initial, desc=label, unit="eval", file=sys.stderr,
+                        disable=not enabled, dynamic_ncols=True, mininterval=min(every_s, 1.0), leave=True)
+        self._stop = threading.Event()
+        self._every_s = every_s
+        if enabled:
+            threading.Thread(target=self._redraw, daemon=True, name="bench-progress").start()
+
+    def _redraw(self) -> None:
+        while not self._stop.wait(self._every_s):
+            self.bar.refresh()
+
+    def update(self, n: int, best_f: float) -> None:
+        self.bar.set_postfix_str(f"best f {best_f:.6g}", refresh=False)
+        self.bar.update(n)
+
+    def close(self) -> None:
+        self._stop.set()
+        self.bar.close()
 
 
 def run_job(
@@ -80,38 +206,97 @@ def run_job(
     config: dict | None = None,
     label: str = "job",
     progress_every_s: float = 5.0,
+    optimizer_class: type | None = None,
+    progress: bool = True,
 ) -> dict:
     """Run (or resume, or skip when finished) one job in ``job_dir`` and return its final record.
 
     ``make_optimizer()`` builds the optimiser from its seed (called again on resume);
-    ``identity`` (problem, optimiser, params, seed, budget) keys the job: a folder holding a
-    different job is refused. Exceptions from the optimiser or the problem fail this job only:
-    the record says ``status: failed`` with the error.
+    ``identity`` (the resolved job config: problem, optimiser, params, seed, budget) keys the job
+    with the problem's data identity and the code version (``job_header``). Raises ``RunError``
+    when the folder holds another job, is locked by another process, or its log does not replay
+    (nothing changed), and ``JobFolderError`` when the record cannot be written; every other error
+    fails this job only: the record says ``status: failed`` with the error.
     """
     job_dir = Path(job_dir)
-    key = job_key(identity)
-    previous = read_record(job_dir)
+    try:
+        lock = FolderLock(job_dir, "job").acquire()
+    except LockError as err:
+        raise RunError(str(err)) from None
+    except OSError as err:
+        raise JobFolderError(f"{job_dir}: cannot create the job folder or its lock ({err})") from None
+    try:
+        return _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label,
+                           progress_every_s, optimizer_class, progress)
+    finally:
+        lock.release()
+
+
+def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | None]:
+    """(the finished record to return, or None to run; a note when the old record.json was unreadable)."""
+    try:
+        previous = read_record(job_dir)
+        if previous is not None and not {"job_key", "status"} <= set(previous):
+            raise RecordError(f"{job_dir / RECORD}: corrupt record (missing job_key or status)")
+    except RecordError as err:
+        kept = job_dir / f"{RECORD}.corrupt"
+        os.replace(job_dir / RECORD, kept)
+        return None, f"{err}; kept as {kept.name}"
+    if previous is None or previous.get("status") != "ok":
+        return None, None  # never finished, or failed: run (resuming its log) again
+    if previous.get("job_key") != header["job_key"]:
+        raise RunError(f"{job_dir} already holds a different job, finished (job_key "
+                       f"{previous.get('job_key')} != {header['job_key']}); choose another hydra.sweep.dir")
+    return previous, None
+
+
+def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label, progress_every_s,
+                optimizer_class, progress) -> dict:
+    header = job_header(identity, problem, optimizer_class)
+    try:
+        previous, corrupt_note = _previous_record(job_dir, header)
+    except OSError as err:
+        raise JobFolderError(f"{job_dir}: cannot read or set aside its record ({err})") from None
     if previous is not None:
-        if previous.get("job_key") != key:
-            raise RunError(
-                f"{job_dir} already holds a different job (job_key {previous.get('job_key')} != {key}); "
-                "choose another hydra.sweep.dir"
-            )
-        if previous.get("status") == "ok":
-            log.info("%s: already finished in %s, skipped", label, job_dir)
-            return previous
+        log.info("%s: already finished in %s, skipped", label, job_dir)
+        return previous
+    try:
+        on_disk = read_job_file(job_dir)
+    except RecordError as err:
+        raise RunError(f"{err}: the log's identity cannot be checked, so it is not resumed") from None
+    evals_path = job_dir / "evals.jsonl"
+    if on_disk is not None:
+        why = header_mismatch(on_disk, header)
+        if why:
+            raise RunError(f"{job_dir} holds a log of another job: {why}; resuming would mix results "
+                           "(choose another hydra.sweep.dir, or restore the settings)")
+    elif evals_path.exists() and evals_path.stat().st_size:
+        raise RunError(f"{evals_path}: an evaluation log without {JOB_FILE} (written by an older version or "
+                       "another tool) cannot be checked, so it is not resumed; move it away")
 
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     state = {"n_evals": 0, "n_batches": 0, "eval_s": 0.0, "best_f": np.inf, "best_x": None,
              "best_metrics": {}, "offset_s": 0.0}
-    stop_reason, error = None, None
+    stop_reason, error, status = None, None, "ok"
     clock0 = time.perf_counter()
+    evals_log, bar = None, None
     try:
+        if corrupt_note:
+            raise RecordError(f"the previous record was unreadable ({corrupt_note}); run the job again to "
+                              "resume from its log")
         optimizer = make_optimizer()
+        entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
+        stop_reason = _replay(optimizer, entries, evals_path, budget, state)  # RunError: nothing changed
         evals_log = EvalLog(job_dir)
-        stop_reason = _replay(optimizer, problem, evals_log, budget, state)
+        if file_bytes > complete_bytes:
+            log.warning("%s: dropping a torn last line of %s (%d bytes)", label, evals_path, file_bytes - complete_bytes)
+            evals_log.truncate_bytes(complete_bytes)
+        if on_disk is None:
+            write_json_atomic(job_dir / JOB_FILE, header)
+        if entries:
+            log.info("%s: resumed after %d logged batches (%d evals)", label, len(entries), state["n_evals"])
         clock0 = time.perf_counter() - state["offset_s"]
-        tick = _Progress(label, budget, progress_every_s)
+        bar = _Progress(label, budget, max(0.5, min(float(progress_every_s), 5.0)), progress, state["n_evals"])
         while stop_reason is None:
             stop_reason = _budget_stop(budget, state, time.perf_counter() - clock0) or _optimizer_stop(optimizer)
             if stop_reason is not None:
@@ -133,25 +318,42 @@ def run_job(
                 stop_reason = "budget_evals"
             else:
                 optimizer.tell(X, f)
-            tick(state["n_evals"], state["best_f"], t_end)
-        tick(state["n_evals"], state["best_f"], time.perf_counter() - clock0, force=True)
-        status = "ok"
-    except RunError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a failing plugin fails its own job only; recorded below
-        status, stop_reason = "failed", "error"
-        error = {"type": type(exc).__name__, "message": str(exc), "traceback": traceback.format_exc()}
-        log.error("%s failed: %s: %s", label, type(exc).__name__, exc)
+            bar.update(len(X), state["best_f"])
+    except RunError as exc:
+        if evals_log is None:  # refused before anything was written
+            raise
+        status, stop_reason, error = "failed", "error", _error(exc)
+    except Exception as exc:  # noqa: BLE001 - a failing plugin, problem or disk fails its own job only; recorded below
+        status, stop_reason, error = "failed", "error", _error(exc)
     finally:
-        if "evals_log" in locals():
-            evals_log.close()
+        if bar is not None:
+            bar.close()
+        if evals_log is not None:
+            try:
+                evals_log.close()
+            except OSError as exc:  # e.g. a full disk: the last flush failed; never hides an earlier error
+                close_error = _error(exc)
+                if error is None:
+                    status, stop_reason, error = "failed", "error", close_error
+                else:
+                    error["also"] = f"closing {evals_path} failed too: {close_error['message']}"
+    if error is not None:
+        log.error("%s failed: %s: %s", label, error["type"], error["message"])
+    else:
+        log.info("%s: %d evals, best f %.6g, %s", label, state["n_evals"], state["best_f"], stop_reason)
 
+    name = lambda v: v.get("name") if isinstance(v, dict) else v  # noqa: E731 - identity holds names or sections
     record = {
         "schema": SCHEMA,
-        "job_key": key,
+        "job_key": header["job_key"],
+        "config_hash": header["config_hash"],
+        "identity": identity,
+        "code_version": header["code"],
         "status": status,
         "error": error,
-        **{k: identity[k] for k in ("problem", "optimizer", "seed") if k in identity},
+        "problem": name(identity.get("problem")),
+        "optimizer": name(identity.get("optimizer")),
+        "seed": identity.get("seed"),
         "budget": {"evals": budget.evals, "seconds": budget.seconds},
         "config": config or {},
         "space": {
@@ -161,6 +363,7 @@ def run_job(
             "upper": problem.space.upper,
             "reference": problem.space.reference,
         },
+        "f_unit": getattr(problem, "f_unit", None),
         "truth_x": problem.truth,
         "f_truth": getattr(problem, "f_truth", None),
         "f_reference": getattr(problem, "f_reference", None),
@@ -177,8 +380,20 @@ def run_job(
         "ended_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         **provenance(),
     }
-    write_json_atomic(job_dir / RECORD, record)
-    return read_record(job_dir)
+    return _write_record(job_dir, record, error)
+
+
+def _error(exc: BaseException) -> dict:
+    return {"type": type(exc).__name__, "message": str(exc), "traceback": traceback.format_exc()}
+
+
+def _write_record(job_dir: Path, record: dict, error: dict | None) -> dict:
+    try:
+        write_json_atomic(job_dir / RECORD, record)
+        return read_record(job_dir)
+    except (OSError, RecordError) as err:
+        first = f" after the job failed with {error['type']}: {error['message']}" if error else ""
+        raise JobFolderError(f"{job_dir}: cannot write {RECORD} ({type(err).__name__}: {err}){first}") from None
 
 
 def _entry(state: dict, X, f, metrics: dict, t_start: float, t_end: float) -> dict:
@@ -210,27 +425,34 @@ def _account(state: dict, entry: dict) -> None:
         state["best_metrics"] = {k: float(np.asarray(v, float)[i]) for k, v in entry["metrics"].items()}
 
 
-def _replay(optimizer, problem: Problem, evals_log: EvalLog, budget: Budget, state: dict) -> str | None:
+def _replay(optimizer, entries: list[dict], path: Path, budget: Budget, state: dict) -> str | None:
     """Feed a killed job's logged batches back to a fresh optimiser; the stop reason if it had ended.
 
-    A torn last line (the kill hit mid-write) is dropped from the log first.
+    Each batch must be what the optimiser asks again, and the job's budget and the optimiser's
+    stop are applied before each one exactly as the run loop applies them: a batch the job
+    would not have evaluated is refused (RunError; nothing written).
     """
-    entries = read_eval_log(evals_log.path.parent)
-    evals_log.truncate_to(len(entries))
     for i, entry in enumerate(entries):
+        reason = _budget_stop(budget, state, state["offset_s"]) or _optimizer_stop(optimizer)
+        if reason is not None:
+            raise RunError(f"{path}: the log holds {len(entries)} batches ({sum(len(e['f']) for e in entries)} evals) "
+                           f"but this job stops after {i} ({state['n_evals']} evals: {reason}); it was written "
+                           "under another budget or stop rule, so it cannot be resumed")
         X_logged = np.asarray(entry["X"], float)
         X_asked = np.asarray(optimizer.ask(), float)
-        if X_asked[: len(X_logged)].shape != X_logged.shape or not np.array_equal(X_asked[: len(X_logged)], X_logged):
-            raise RunError(
-                f"{evals_log.path}: batch {i} differs from what the optimiser asks again; the log was written "
-                "by another configuration or a non-deterministic optimiser, so it cannot be resumed"
-            )
+        if (X_logged.ndim != 2 or X_asked[: len(X_logged)].shape != X_logged.shape
+                or not np.array_equal(X_asked[: len(X_logged)], X_logged)):
+            raise RunError(f"{path}: batch {i} differs from what the optimiser asks again; the log was written "
+                           "by another configuration or a non-deterministic optimiser, so it cannot be resumed")
+        trimmed = len(X_logged) < len(X_asked)
+        over = budget.evals is not None and state["n_evals"] + len(X_asked) > budget.evals
+        if trimmed != over or (trimmed and (state["n_evals"] + len(X_logged) != budget.evals or i != len(entries) - 1)):
+            raise RunError(f"{path}: batch {i} holds {len(X_logged)} of the {len(X_asked)} points asked, which "
+                           f"this job's budget (budget.evals={budget.evals}) does not explain; it cannot be resumed")
         _account(state, entry)
-        if len(X_logged) < len(X_asked):  # the trimmed last batch of a finished evaluation budget
+        if trimmed:  # the trimmed last batch of a finished evaluation budget
             return "budget_evals"
         optimizer.tell(X_logged, np.asarray(entry["f"], float))
-    if entries:
-        log.info("resumed %s after %d logged batches (%d evals)", evals_log.path.parent, len(entries), state["n_evals"])
     return None
 
 
@@ -248,21 +470,46 @@ def _optimizer_stop(optimizer) -> str | None:
 
 
 def record_failure(job_dir: Path, identity: dict, config: dict, exc: BaseException) -> dict:
-    """Write the record of a job that failed before its run loop started (e.g. its problem did not build)."""
-    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    record = {
-        "schema": SCHEMA,
-        "job_key": job_key(identity),
-        "status": "failed",
-        "error": {"type": type(exc).__name__, "message": str(exc), "traceback": traceback.format_exc()},
-        **{k: identity[k] for k in ("problem", "optimizer", "seed") if k in identity},
-        "budget": identity.get("budget"),
-        "config": config,
-        "space": None, "truth_x": None, "f_truth": None, "f_reference": None, "problem_identity": None,
-        "best_x": None, "best_f": None, "best_metrics": {},
-        "n_evals": 0, "n_batches": 0, "wall_s": 0.0, "eval_s": 0.0,
-        "stop_reason": "error", "started_utc": now, "ended_utc": now,
-        **provenance(),
-    }
-    write_json_atomic(Path(job_dir) / RECORD, record)
-    return read_record(job_dir)
+    """Write the record of a job that failed before its run loop started (e.g. its problem did not build).
+
+    Never replaces a finished record (RunError) and never touches the log; JobFolderError when
+    the folder cannot be written.
+    """
+    job_dir = Path(job_dir)
+    try:
+        lock = FolderLock(job_dir, "job").acquire()
+    except LockError as err:
+        raise RunError(str(err)) from None
+    except OSError as err:
+        raise JobFolderError(f"{job_dir}: cannot create the job folder or its lock ({err}) after: "
+                             f"{type(exc).__name__}: {exc}") from None
+    try:
+        try:
+            previous = read_record(job_dir)
+        except RecordError:
+            previous = None
+        if previous is not None and previous.get("status") == "ok":
+            raise RunError(f"{job_dir}: {type(exc).__name__}: {exc} (the folder's finished record is left unchanged)")
+        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        name = lambda v: v.get("name") if isinstance(v, dict) else v  # noqa: E731
+        record = {
+            "schema": SCHEMA,
+            "job_key": None,
+            "config_hash": config_hash(identity),
+            "identity": identity,
+            "status": "failed",
+            "error": {"type": type(exc).__name__, "message": str(exc),
+                      "traceback": "".join(traceback.format_exception(exc))},
+            "problem": name(identity.get("problem")), "optimizer": name(identity.get("optimizer")),
+            "seed": identity.get("seed"),
+            "budget": identity.get("budget"),
+            "config": config,
+            "space": None, "truth_x": None, "f_truth": None, "f_reference": None, "problem_identity": None,
+            "best_x": None, "best_f": None, "best_metrics": {},
+            "n_evals": 0, "n_batches": 0, "wall_s": 0.0, "eval_s": 0.0,
+            "stop_reason": "error", "started_utc": now, "ended_utc": now,
+            **provenance(),
+        }
+        return _write_record(job_dir, record, record["error"])
+    finally:
+        lock.release()
