@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import functools
+import os
 import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
 
-_PACKAGES = ("numpy", "scipy", "pandas", "hydra-core", "omegaconf", "pymoo", "optuna", "cmaes",
-             "nevergrad", "opencv-python-headless", "matplotlib")
+_PACKAGES = ("numpy", "numba", "scipy", "pandas", "hydra-core", "omegaconf", "pymoo", "optuna", "cmaes",
+             "nevergrad", "opencv-python-headless", "matplotlib", "tqdm")
 
 
 def _git_commit() -> str:
@@ -24,6 +25,26 @@ def _git_commit() -> str:
         return "unknown"
 
 
+def cpu_model() -> str:
+    """The CPU's model name (numba compiles the filter for it): /proc/cpuinfo on Linux, sysctl on
+    macOS, else ``platform.processor()``; "unknown" when none says."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "Model", "cpu model", "Hardware") and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    try:
+        out = subprocess.run(["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True,
+                             timeout=5).stdout.strip()
+        if out:
+            return out
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return platform.processor() or "unknown"
+
+
 def _version(package: str) -> str | None:
     try:
         return metadata.version(package)
@@ -33,10 +54,11 @@ def _version(package: str) -> str | None:
 
 @functools.lru_cache(maxsize=1)
 def provenance() -> dict:
-    """``{"git_commit", "versions", "machine"}`` for records (computed once per process)."""
+    """``{"git_commit", "versions", "machine"}`` for records (computed once per process); versions
+    include numba's (it compiles the filter) and machine the CPU model it compiles for."""
     return {
         "git_commit": _git_commit(),
         "versions": {"python": platform.python_version(), **{p: _version(p) for p in _PACKAGES}},
         "machine": {"node": platform.node(), "platform": platform.platform(),
-                    "processor": platform.machine(), "cpus": __import__("os").cpu_count()},
+                    "processor": platform.machine(), "cpu_model": cpu_model(), "cpus": os.cpu_count()},
     }
