@@ -1,11 +1,16 @@
-"""PNG figures of anytime curves and runtime ECDFs, one figure per problem.
+"""PNG figures of anytime curves and runtime ECDFs, one figure per problem, and the one saver
+every report figure goes through.
 
 Built on ``matplotlib.figure.Figure`` with the Agg canvas (no pyplot, no global state, no
-display). PNGs carry no timestamp or software tag, so the same data give the same bytes.
+display, no ``matplotlib.use``). Each figure is written as a PNG at ``DPI`` (for pages) and a
+PDF beside it (vector, for papers); neither carries a timestamp or a software tag, so the same
+data give the same bytes.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +20,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, NullFormatter
 
 PNG_METADATA = {"Software": None}
+PDF_METADATA = {"CreationDate": None, "Producer": None, "Creator": None}
+DPI = 150
 # Fixed margins instead of tight_layout, and plain-number tick labels instead of mathtext:
 # both measured as most of the time of a report build.
 MARGINS = {"left": 0.07, "right": 0.985, "bottom": 0.13, "top": 0.88, "wspace": 0.22}
@@ -22,12 +29,52 @@ PLAIN = FuncFormatter(lambda value, _: f"{value:g}")
 AXIS_LABELS = {"evals": "evaluations", "seconds": "wall time (s)"}
 
 
-def _save(fig: Figure, path: Path) -> Path:
+KEY_FIELD = "avio-bench-key"  # PNG text chunk: what the figure was drawn from
+
+
+def figure_key(*parts) -> str:
+    """Hex SHA-256 of what a figure is drawn from (JSON-able parts, bytes or str) and of the
+    drawing code (this module, ``bench.paper_figures`` and matplotlib's version)."""
+    import matplotlib
+
+    digest = hashlib.sha256(matplotlib.__version__.encode())
+    here = Path(__file__).resolve().parent
+    for module in ("figures.py", "paper_figures.py"):
+        digest.update((here / module).read_bytes())
+    for part in parts:
+        digest.update(part if isinstance(part, bytes) else
+                      (part if isinstance(part, str) else json.dumps(part, sort_keys=True, default=str)).encode())
+        digest.update(b"\0")
+    return digest.hexdigest()
+
+
+def is_current(path: Path, key: str | None, pdf: bool = True) -> bool:
+    """Whether ``path`` (and its PDF) already hold the figure drawn from ``key``: drawing is
+    most of a report's time, and the same inputs give the same bytes, so it is skipped."""
+    path = Path(path)
+    if key is None or not path.is_file() or (pdf and not path.with_suffix(".pdf").is_file()):
+        return False
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return image.text.get(KEY_FIELD) == key
+    except (OSError, UnidentifiedImageError):
+        return False
+
+
+def save_figure(fig: Figure, path: Path, pdf: bool = True, key: str | None = None) -> Path:
+    """Write ``fig`` to ``path`` (.png, at ``DPI``, with ``key`` in its metadata, see
+    ``is_current``) and, with ``pdf``, the same figure as ``path`` with suffix .pdf; return the
+    PNG's path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=100, metadata=PNG_METADATA)
+    fig.savefig(path, dpi=DPI, metadata={**PNG_METADATA, **({KEY_FIELD: key} if key else {})})
+    if pdf:
+        fig.savefig(path.with_suffix(".pdf"), metadata=PDF_METADATA)
     return path
+
 
 
 def _colors(optimizers: list[str]) -> dict[str, tuple]:
@@ -48,6 +95,9 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
     """
     levels = {k: v for k, v in (levels or {}).items() if v is not None and np.isfinite(v)}
     data = curves[curves["problem"] == problem]
+    key = figure_key("anytime", problem, data.to_csv(index=False), {k: float(v) for k, v in levels.items()})
+    if is_current(path, key):
+        return Path(path)
     colors = _colors(list(data["optimizer"].unique()))
     fig = Figure(figsize=(11, 4.2))
     axes = fig.subplots(1, 2)
@@ -69,7 +119,7 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
     _legend_or_note(axes)
     fig.suptitle(f"{problem}: anytime performance")
     fig.subplots_adjust(**MARGINS)
-    return _save(fig, path)
+    return save_figure(fig, path, key=key)
 
 
 def _legend_or_note(axes) -> None:
@@ -107,6 +157,9 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
     ecdf: ``bench.targets.ecdf`` rows for both axes (column ``axis``).
     """
     data = ecdf[ecdf["problem"] == problem]
+    key = figure_key("ecdf", problem, data.to_csv(index=False))
+    if is_current(path, key):
+        return Path(path)
     colors = _colors(list(data["optimizer"].unique()))
     fig = Figure(figsize=(11, 4.2))
     axes = fig.subplots(1, 2)
@@ -124,4 +177,4 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
     _legend_or_note(axes)
     fig.suptitle(f"{problem}: runtime ECDF over all fixed targets")
     fig.subplots_adjust(**MARGINS)
-    return _save(fig, path)
+    return save_figure(fig, path, key=key)

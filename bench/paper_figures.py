@@ -1,165 +1,200 @@
-"""The paper's figures rebuilt from run records of a VIO problem (PNG, matplotlib Agg).
+"""The paper's figures rebuilt from run records and stored filter artifacts (``bench.artifacts``).
+
+Each figure is a PNG (150 dpi) with a PDF beside it (``bench.figures.save_figure``), drawn on
+``matplotlib.figure.Figure`` (no pyplot, no backend switch at import):
 
 - ``convergence_<optimizer>_evals.png`` / ``_seconds.png``: each calibration variable's
-  best-so-far value against evaluations and wall seconds, one line per seed, the stop point
-  marked, truth and reference as horizontal lines (the paper's Figs. 5–7);
-- ``trajectories_<drive>.png``: top-down ground truth, VIO with the reference, AVIO (Figs. 9, 12);
+  best-so-far value against evaluations and wall seconds, one line per seed (legend), the
+  stop point marked, truth and reference as horizontal lines (the paper's Figs. 5–7);
+- ``trajectories_<drive>.png``: top-down ground truth and the VIO with the reference, the
+  truth and the leading optimiser's median-run calibration, each coloured by its position
+  error on one shared scale (as evo draws them; the paper's Figs. 9, 12);
 - ``errors_<drive>.png``: position, velocity and attitude errors over time (Figs. 11, 13);
-- ``profile.png`` + ``profile.csv``: the objective along each variable, others at the truth
-  (or the reference when the truth is unknown) — see :func:`objective_profile`.
+- ``profile.png``: the objective along each variable on a linear scale, the others at the
+  truth (or the reference when the truth is unknown), truth and reference marked.
 """
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib import colormaps
+from matplotlib.collections import LineCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+from bench.curves import incumbent_index
+from bench.figures import figure_key, is_current, save_figure
+from bench.records import EVAL_LOG, read_eval_log
 
-from avio.metrics import pose_errors  # noqa: E402
-from avio.sequence import Calibration  # noqa: E402
-from bench.problems.vio import VioRmseProblem  # noqa: E402
-from bench.records import eval_log_frame  # noqa: E402
-
-_PNG = {"metadata": {"Software": None}, "dpi": 110}
-
-
-def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, **_PNG)
-    plt.close(fig)
-    return path
+STATE_UNITS = (("position", "m"), ("velocity", "m/s"), ("attitude", "deg"))
 
 
-def _grid(n: int):
-    cols = 5 if n > 6 else n
+def _grid(n: int, width: float = 3.2, height: float = 2.6):
+    cols = 5 if n > 6 else max(n, 1)
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
-    for ax in axes.flat[n:]:
+    fig = Figure(figsize=(width * cols, height * rows + 0.6))
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[n:]:
         ax.set_visible(False)
-    return fig, axes.flat
+    return fig, axes
 
 
 def best_so_far_values(job_dir: Path, names: list[str]) -> pd.DataFrame:
-    """Per evaluation of one job: ``eval``, ``t_end_s`` and the variables of the best point so far."""
-    log = eval_log_frame(job_dir, names)
-    if log.empty:
-        return log
-    best_row = log["f"].where(np.isfinite(log["f"]), np.inf).expanding().apply(np.argmin, raw=True).astype(int)
-    values = log[[f"x.{n}" for n in names]].to_numpy()[best_row.to_numpy()]
-    out = pd.DataFrame(values, columns=names)
-    out.insert(0, "t_end_s", log["t_end_s"].to_numpy())
-    out.insert(0, "eval", log["eval"].to_numpy())
+    """Per evaluation of one job: ``eval`` (1-based), ``t_end_s`` (its batch's end) and the
+    variables of the incumbent (best point so far; ties keep the earlier point)."""
+    entries = read_eval_log(job_dir)
+    entries = [e for e in entries if len(e["f"])]
+    if not entries:
+        return pd.DataFrame(columns=["eval", "t_end_s", *names])
+    X = np.concatenate([np.asarray(e["X"], float).reshape(len(e["f"]), -1) for e in entries])
+    f = np.concatenate([np.asarray(e["f"], float) for e in entries])
+    t = np.concatenate([np.full(len(e["f"]), float(e["t_end_s"])) for e in entries])
+    out = pd.DataFrame(X[incumbent_index(f)], columns=names)
+    out.insert(0, "t_end_s", t)
+    out.insert(0, "eval", np.arange(1, len(f) + 1))
     return out
 
 
-def convergence_figures(problem: VioRmseProblem, records: list[dict], out: Path) -> list[Path]:
-    """Figs. 5–7: per optimiser, every variable's best-so-far value against evaluations and seconds."""
-    names = list(problem.space.names)
+def convergence_figures(space: dict, records: list[dict], out: Path) -> list[Path]:
+    """Figs. 5–7: per optimiser, every variable's best-so-far value against evaluations and
+    seconds, one line per seed. ``space``: the artifacts manifest's ``space``."""
+    names, units = space["names"], space["units"]
     written = []
     for optimizer in sorted({r["optimizer"] for r in records}):
-        runs = [(r["seed"], best_so_far_values(Path(r["job_dir"]), names))
-                for r in sorted(records, key=lambda r: r["seed"]) if r["optimizer"] == optimizer]
+        mine = [r for r in sorted(records, key=lambda r: int(r["seed"])) if r["optimizer"] == optimizer]
+        logs = [hashlib.sha256((Path(r["job_dir"]) / EVAL_LOG).read_bytes()).hexdigest()
+                if (Path(r["job_dir"]) / EVAL_LOG).exists() else "" for r in mine]
+        runs = None
         for axis, label in (("eval", "evaluations"), ("t_end_s", "wall seconds")):
+            stem = "evals" if axis == "eval" else "seconds"
+            path = out / f"convergence_{optimizer}_{stem}.png"
+            key = figure_key("convergence", axis, space, [(int(r["seed"]), h) for r, h in zip(mine, logs)])
+            if is_current(path, key):
+                written.append(path)
+                continue
+            if runs is None:
+                runs = [(int(r["seed"]), best_so_far_values(Path(r["job_dir"]), names)) for r in mine]
             fig, axes = _grid(len(names))
             for i, (ax, name) in enumerate(zip(axes, names)):
                 for seed, frame in runs:
                     if frame.empty:
                         continue
-                    line, = ax.plot(frame[axis], frame[name], lw=0.9, alpha=0.8)
-                    ax.plot(frame[axis].iloc[-1], frame[name].iloc[-1], "x", color=line.get_color())
-                ax.axhline(problem.space.reference[i], color="0.5", ls=":", lw=1, label="reference")
-                if problem.truth is not None:
-                    ax.axhline(problem.truth[i], color="k", ls="--", lw=1, label="truth")
-                ax.set_title(f"{name} ({problem.space.units[i]})", fontsize=9)
+                    # the incumbent changes rarely: draw its steps, not every evaluation
+                    change = np.r_[True, np.any(np.diff(frame[names].to_numpy(), axis=0) != 0, axis=1)]
+                    change[-1] = True
+                    part = frame[change]
+                    line, = ax.plot(part[axis], part[name], lw=0.9, alpha=0.85, drawstyle="steps-post",
+                                    label=f"seed {seed}")
+                    ax.plot(part[axis].iloc[-1], part[name].iloc[-1], "x", color=line.get_color())
+                ax.axhline(space["reference"][i], color="0.5", ls=":", lw=1, label="reference")
+                if space.get("truth") is not None:
+                    ax.axhline(space["truth"][i], color="k", ls="--", lw=1, label="truth")
+                ax.set_title(f"{name} ({units[i]})", fontsize=9)
                 ax.set_xlabel(label, fontsize=8)
                 ax.tick_params(labelsize=7)
-            axes[0].legend(fontsize=7)
-            fig.suptitle(f"{optimizer}: best-so-far calibration per seed (x = stop)", fontsize=10)
-            fig.tight_layout()
-            stem = "evals" if axis == "eval" else "seconds"
-            written.append(_save(fig, out / f"convergence_{optimizer}_{stem}.png"))
+            handles, labels = axes[0].get_legend_handles_labels()
+            fig.legend(handles, labels, loc="upper right", fontsize=7, ncol=min(len(labels), 8))
+            fig.suptitle(f"{optimizer}: best-so-far calibration per seed (x = stop)", fontsize=10, x=0.3)
+            fig.subplots_adjust(left=0.05, right=0.99, bottom=0.1, top=0.84, wspace=0.35, hspace=0.55)
+            written.append(save_figure(fig, path, key=key))
     return written
 
 
-def median_seed_calibration(problem: VioRmseProblem, records: list[dict], optimizer: str) -> Calibration:
-    """The calibration of the optimiser's median seed (by best f): a typical outcome, not the luckiest."""
-    rows = sorted((r for r in records if r["optimizer"] == optimizer), key=lambda r: (r["best_f"], r["seed"]))
-    return problem.calibration_space.decode(np.array([rows[(len(rows) - 1) // 2]["best_x"]]))
+def _shown(trajectories: dict, leader: str) -> list[int]:
+    """Indices of the reference, the truth and the leader's median run among the stored trajectories."""
+    labels = [str(v) for v in trajectories["labels"]]
+    return [i for i, label in enumerate(labels)
+            if label in ("reference", "truth") or label.startswith(f"AVIO {leader} (")]
 
 
-def trajectory_figures(problem: VioRmseProblem, avio: Calibration, label: str, out: Path) -> list[Path]:
-    """Figs. 9/12 and 11/13 on the calibration drive and the held-out drive."""
+def _label(label: str) -> str:
+    return {"reference": "VIO reference", "truth": "VIO truth calibration"}.get(label, label)
+
+
+def trajectory_figures(artifacts, leader: str, out: Path) -> list[Path]:
+    """Figs. 9/12 and 11/13 for each stored drive: top-down trajectories coloured by position
+    error, and the errors over time, for the reference, the truth and ``leader``'s median run."""
     written = []
-    drives = [("calibration", problem.sequence)] + ([("holdout", problem.holdout)] if problem.holdout else [])
-    for which, sequence in drives:
-        batch = Calibration.stack([sequence.reference_calibration, avio])
-        result = problem.run_filter(batch, sequence)
-        errors = pose_errors(result, sequence.truth)
-        fig, ax = plt.subplots(figsize=(6.5, 5.5))
-        gt = sequence.truth.p_world_imu_m
-        ax.plot(gt[:, 0], gt[:, 1], "k-", lw=2, label="ground truth")
-        for k, (name, style) in enumerate((("VIO reference", "--"), (f"AVIO ({label})", "-"))):
-            p = result.p_world_imu_m[k]
-            ax.plot(p[:, 0], p[:, 1], style, lw=1.2, label=f"{name}: RMSE {errors['position_rmse'][k]:.2f} m")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_title(f"{which} drive {sequence.name} ({sequence.path_length_m():.0f} m), top-down")
-        ax.legend(fontsize=8)
-        written.append(_save(fig, out / f"trajectories_{which}.png"))
+    cmap = colormaps["viridis"]
+    for which, traj in artifacts.trajectories.items():
+        drive = artifacts.manifest["drives"][which]
+        shown = _shown(traj, leader)
+        paths = [out / f"trajectories_{which}.png", out / f"errors_{which}.png"]
+        key = figure_key("trajectories", artifacts.manifest["key"], which, leader)
+        if all(is_current(p, key) for p in paths):
+            written += paths
+            continue
+        gt = traj["p_true"]
+        norm = Normalize(0.0, float(np.nanmax(traj["e_position"][shown])) if shown else 1.0)
+        fig = Figure(figsize=(5.2 * max(len(shown), 1), 5.2))
+        axes = np.atleast_1d(fig.subplots(1, max(len(shown), 1)))
+        for ax, k in zip(axes, shown):
+            p = traj["p_est"][k]
+            e = traj["e_position"][k]
+            ax.plot(gt[:, 0], gt[:, 1], color="0.6", lw=2.5, ls="--", label="ground truth")
+            segments = np.stack([p[:-1, :2], p[1:, :2]], axis=1)
+            lc = LineCollection(segments, cmap=cmap, norm=norm, linewidths=1.6)
+            lc.set_array(0.5 * (e[:-1] + e[1:]))
+            ax.add_collection(lc)
+            ax.plot(*p[0, :2], "o", color="k", ms=4)
+            rmse = float(np.sqrt(np.mean(e ** 2)))
+            ax.set_title(f"{_label(str(traj['labels'][k]))}\nposition RMSE {rmse:.2f} m", fontsize=9)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_xlabel("x (m)")
+            ax.legend(fontsize=7, loc="best")
+        axes[0].set_ylabel("y (m)")
+        fig.colorbar(lc, ax=list(axes), label="position error (m)", shrink=0.85)
+        fig.suptitle(f"{which} drive {drive['name']} ({drive['path_length_m']:.0f} m), top-down, "
+                     f"coloured by position error", fontsize=10)
+        written.append(save_figure(fig, paths[0], key=key))
 
-        t = sequence.frame_t_s - sequence.frame_t_s[0]
-        fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
-        for ax, (state, unit) in zip(axes, (("position", "m"), ("velocity", "m/s"), ("attitude", "deg"))):
-            for k, name in enumerate(("VIO reference", f"AVIO ({label})")):
-                ax.plot(t, errors[f"{state}_errors"][k], lw=1, label=name)
+        fig = Figure(figsize=(8, 7))
+        axes = fig.subplots(3, 1, sharex=True)
+        for ax, (state, unit) in zip(axes, STATE_UNITS):
+            for k in shown:
+                ax.plot(traj["t_s"], traj[f"e_{state}"][k], lw=1, label=_label(str(traj["labels"][k])))
             ax.set_ylabel(f"{state} error ({unit})")
+            ax.grid(True, alpha=0.3)
         axes[0].legend(fontsize=8)
         axes[-1].set_xlabel("time (s)")
-        fig.suptitle(f"errors over time, {which} drive {sequence.name}")
-        fig.tight_layout()
-        written.append(_save(fig, out / f"errors_{which}.png"))
+        fig.suptitle(f"errors over time, {which} drive {drive['name']}")
+        fig.subplots_adjust(left=0.1, right=0.98, bottom=0.08, top=0.93, hspace=0.12)
+        written.append(save_figure(fig, paths[1], key=key))
     return written
 
 
-def objective_profile(problem: VioRmseProblem, n_points: int = 21) -> pd.DataFrame:
-    """The objective along each variable across its bounds, the others at the truth (or reference).
-
-    One batch of ``n_points * d`` evaluations. Columns: variable, unit, value, offset (value minus
-    the anchor), f, and the calibration errors when the truth is known.
-    """
-    anchor = problem.truth if problem.truth is not None else problem.space.reference
-    rows, labels = [], []
-    for i, name in enumerate(problem.space.names):
-        grid = np.unique(np.r_[np.linspace(problem.space.lower[i], problem.space.upper[i], n_points), anchor[i]])
-        X = np.tile(anchor, (len(grid), 1))
-        X[:, i] = grid
-        rows.append(X)
-        labels += [(name, problem.space.units[i], v, v - anchor[i]) for v in grid]
-    f, metrics = problem.evaluate(np.concatenate(rows))
-    frame = pd.DataFrame(labels, columns=["variable", "unit", "value", "offset"])
-    frame["f"] = f
-    for key, values in metrics.items():
-        frame[key] = values
-    return frame
-
-
-def profile_figure(profile: pd.DataFrame, out: Path, anchor_label: str) -> Path:
+def profile_figure(profile: pd.DataFrame, space: dict, out: Path, objective: str = "position_rmse") -> Path:
+    """The objective along each variable on a linear scale (a 3 mm change looks like one),
+    the others at the truth (dashed, black) or the reference (dotted, grey) when the truth is
+    unknown; a truth outside the bounds is drawn where it is and flagged in the panel title."""
     names = list(dict.fromkeys(profile["variable"]))
+    key = figure_key("profile", profile.to_csv(index=False), space, objective)
+    if is_current(out, key):
+        return Path(out)
     fig, axes = _grid(len(names))
+    truth = space.get("truth")
+    anchor = "truth" if truth is not None else "reference"
     for ax, name in zip(axes, names):
+        i = space["names"].index(name)
         part = profile[profile["variable"] == name]
-        ax.plot(part["value"], part["f"], ".-", lw=1)
-        anchor = part.loc[part["offset"].abs().idxmin(), "value"]
-        ax.axvline(anchor, color="k", ls="--", lw=0.8)
-        ax.set_yscale("log")
-        ax.set_title(f"{name} ({part['unit'].iloc[0]})", fontsize=9)
+        ax.plot(part["value"], part["f"], ".-", lw=1, ms=3)
+        ax.axvline(space["reference"][i], color="0.5", ls=":", lw=1.2, label="reference")
+        outside = ""
+        if truth is not None:
+            ax.axvline(truth[i], color="k", ls="--", lw=0.9, label="truth")
+            if not space["truth_in_bounds"][i]:
+                outside = " — truth outside the bounds"
+        ax.axvspan(space["lower"][i], space["upper"][i], color="0.92", zorder=0)
+        ax.set_title(f"{name} ({part['unit'].iloc[0]}){outside}", fontsize=8,
+                     color="firebrick" if outside else "black")
         ax.tick_params(labelsize=7)
-    fig.suptitle(f"position RMSE (m) along each variable, others at the {anchor_label} (dashed)", fontsize=10)
-    fig.tight_layout()
-    return _save(fig, out)
+        ax.ticklabel_format(axis="y", useOffset=False)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"objective ({objective}, linear scale) along each variable, the others at the {anchor}; "
+                 "grey band = the bounds", fontsize=10)
+    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.08, top=0.86, wspace=0.4, hspace=0.55)
+    return save_figure(fig, out, key=key)

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05] [--no-tables]
+    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05] [--no-tables] [--recompute]
 
 finds every job folder (one holding ``record.json``) under the DIRs and writes into OUT
 (default: the first DIR's ``report/``):
@@ -12,15 +12,20 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
   (average rank over problems) — see ``bench.stats``;
 - ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
   ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
-- ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png``;
+- ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png`` (150 dpi, PDF beside);
 - ``tables/`` — the paper's Tables 1–3 and figures (``bench.tables``), when the records hold a
-  VIO problem (``--no-tables`` skips them);
-- ``report.md`` — one readable document linking all of the above.
+  VIO problem (``--no-tables`` skips them). What they need from the filter is computed once
+  and stored in ``DIR/artifacts/`` (``bench.artifacts``); later reports read it back and never
+  re-run the VIO unless ``--recompute`` is given;
+- ``report.html`` — the whole report as one self-contained page (``bench.html_report``):
+  every figure embedded, sortable tables, the provenance of the records;
+- ``report.md`` — the same as a Markdown document linking the files.
 
-Same records, same options → byte-identical CSV, Markdown and PNG files: nothing written
+Same records, same options → byte-identical CSV, Markdown, HTML and PNG files: nothing written
 depends on the time, the machine or where the folders are (job folders are named relative to
-the DIR they were found in). Bad input (a missing DIR, no records, a corrupt record or log)
-ends with one message on stderr and exit code 2.
+the DIR they were found in; the provenance shown is the records'). Progress goes to stderr,
+the path of report.md to stdout. Bad input (a missing DIR, no records, a corrupt record or
+log, ``--alpha`` outside (0, 1)) ends with one message on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -28,7 +33,9 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import time
 from pathlib import Path
+from typing import Callable
 
 import pandas as pd
 
@@ -84,32 +91,55 @@ def _md_table(frame: pd.DataFrame) -> str:
     return frame.to_markdown(index=False, floatfmt=MD_FLOAT)
 
 
-def _paper_tables(dirs: list[Path], out: Path) -> tuple[list[Path], str]:
+def _paper_tables(dirs: list[Path], out: Path, recompute: bool, log) -> tuple[list[Path], str]:
     """The paper's Tables 1–3 and figures: (files written, note for the report when none were)."""
     from bench.tables import TablesError, build_tables  # imports the VIO stack only when needed
 
     try:
-        return [Path(p) for p in build_tables(dirs, out / "tables")], ""
+        return [Path(p) for p in build_tables(dirs, out / "tables", recompute=recompute, log=log)], ""
     except TablesError as err:
         return [], f"Not built: {err}."
 
 
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def check_alpha(alpha) -> float:
+    """``alpha`` as a float in (0, 1), else ReportError naming the option."""
+    try:
+        value = float(alpha)
+    except (TypeError, ValueError):
+        raise ReportError(f"--alpha must be a number in (0, 1), got {alpha!r}") from None
+    if not 0.0 < value < 1.0:
+        raise ReportError(f"--alpha must be in (0, 1), got {alpha!r}")
+    return value
+
+
 def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, seed: int = 0,
-                 paper_tables: bool = True) -> Path:
+                 paper_tables: bool = True, recompute: bool = False,
+                 log: Callable[[str], None] | None = _stderr) -> Path:
     """Build the whole report from the job folders under ``dirs``; return the path of report.md.
 
     dirs: folders (or job folders) to search; out: output folder (default ``dirs[0]/report``);
     pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
-    alpha: significance level after Holm correction; seed: for the bootstrap intervals;
-    paper_tables: also build the paper's Tables 1–3 and figures through ``bench.tables``.
+    alpha: significance level after Holm correction, in (0, 1); seed: for the bootstrap
+    intervals; paper_tables: also build the paper's Tables 1–3 and figures through
+    ``bench.tables``; recompute: re-run the VIO for them even when stored artifacts match;
+    log: where progress lines go (default stderr; None for silence).
     Raises ReportError / RecordError / LeaderboardError on bad input.
     """
+    log = log or (lambda message: None)
+    alpha = check_alpha(alpha)
     roots = [Path(d) for d in dirs]
     if not roots:
         raise ReportError("no input folder given")
     out = Path(out) if out is not None else roots[0] / "report"
-    records = load_job_records(roots)
+    started = time.perf_counter()
+    records = load_job_records(roots)  # bad input stops here, before any output
     runs = runs_table(records)
+    log(f"report: {len(runs)} job records under {', '.join(map(str, roots))}; leaderboard, statistics, "
+        "targets and curves")
     job_label = dict(zip(records["job_dir"].astype(str), records["job"]))
     traces = run_traces(runs)
     curves = pd.concat([anytime_curves(traces, axis) for axis in ("evals", "seconds")], ignore_index=True)
@@ -129,6 +159,7 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
                         ("versus_leader", vs), ("ranks", avg), ("targets", targets_table(targets)),
                         ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
         _write_csv(frame, out / f"{name}.csv")
+    log("report: drawing the anytime and ECDF figures")
     figures, used = {}, set()
     for problem in sorted(runs["problem"].unique()):
         slug = _slug(problem)
@@ -139,11 +170,22 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
         levels = {"f at truth": anchors["f_truth"], "f at reference": anchors["f_reference"]}
         figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png", levels),
                             ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"))
-    tables = _paper_tables(roots, out) if paper_tables else ([], "Not built: disabled for this report.")
+    if paper_tables:
+        log("report: the paper's tables and figures")
+    tables = (_paper_tables(roots, out, recompute, log) if paper_tables
+              else ([], "Not built: disabled for this report."))
     text = _markdown(runs_out, board, avg, pairs, ert, targets_table(targets), figures, tables, out,
                      pairing, alpha)
     path = out / "report.md"
     path.write_text(text)
+    log("report: writing report.html")
+    from bench.html_report import build_page
+
+    (out / "report.html").write_text(build_page(
+        roots=roots, records=records, runs=runs_out, board=board, avg=avg, pairs=pairs, vs=vs, ert=ert,
+        targets=targets_table(targets), figures=figures, tables=tables, out=out, pairing=pairing, alpha=alpha,
+        definitions=_DEFINITIONS))
+    log(f"report: done in {time.perf_counter() - started:.1f} s -> {out}")
     return path
 
 
@@ -266,13 +308,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="output folder (default: FIRST_DIR/report)")
     parser.add_argument("--pairing", choices=("none", "seed"), default="none",
                         help="'seed': Wilcoxon signed-rank on seed-matched runs (default: Mann–Whitney U)")
-    parser.add_argument("--alpha", type=float, default=0.05, help="significance level after Holm (default 0.05)")
-    parser.add_argument("--no-tables", action="store_true",
-                        help="skip the paper's Tables 1-3 (bench/tables.py re-runs the VIO, which takes time)")
+    parser.add_argument("--alpha", default="0.05", help="significance level after Holm, in (0, 1) (default 0.05)")
+    parser.add_argument("--no-tables", action="store_true", help="skip the paper's Tables 1-3 and figures")
+    parser.add_argument("--recompute", action="store_true",
+                        help="re-run the VIO for the paper's tables even when the stored artifacts match the records")
     args = parser.parse_args(argv)
     try:
         path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
-                            paper_tables=not args.no_tables)
+                            paper_tables=not args.no_tables, recompute=args.recompute)
     except (ReportError, RecordError, LeaderboardError, StatsError, TargetsError, CurvesError) as err:
         print(f"bench.report: error: {err}", file=sys.stderr)
         return 2

@@ -2,6 +2,7 @@
 
 import importlib.machinery
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -14,7 +15,7 @@ from record_factory import write_job
 from bench.report import ReportError, build_report, main
 
 OUTPUTS = ["leaderboard.csv", "runs.csv", "pairwise.csv", "versus_leader.csv", "ranks.csv",
-           "targets.csv", "ert.csv", "ecdf.csv", "curves.csv", "report.md"]
+           "targets.csv", "ert.csv", "ecdf.csv", "curves.csv", "report.md", "report.html"]
 
 
 def make_runs(root: Path) -> Path:
@@ -140,7 +141,7 @@ def fake_tables_module(fail: bool) -> types.ModuleType:
     class TablesError(ValueError):
         pass
 
-    def build_tables(dirs, out):
+    def build_tables(dirs, out, **options):
         if fail:
             raise TablesError("no VIO problem among the finished jobs")
         out.mkdir(parents=True)
@@ -160,3 +161,43 @@ def test_paper_tables_hook_links_and_includes_the_tables(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "bench.tables", fake_tables_module(fail=True))
     text = build_report([tmp_path / "runs"], tmp_path / "out2").read_text()
     assert "_Not built: no VIO problem among the finished jobs._" in text
+
+
+@pytest.mark.parametrize("alpha", ["2", "0", "-0.1", "1", "nan", "abc"])
+def test_alpha_outside_0_1_exits_2_with_one_message(built, alpha, capsys):
+    root, _, _ = built
+    assert main([str(root), "--alpha", alpha, "--no-tables", "--out", str(root / "never")]) == 2
+    err = capsys.readouterr().err
+    assert "--alpha must be" in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (root / "never").exists()  # refused before any work
+
+
+def test_html_page_is_self_contained_with_every_section_and_figure(built):
+    from bench.html_report import SECTIONS
+
+    _, first, _ = built
+    page = (first.parent / "report.html").read_text()
+    for section, _ in SECTIONS:
+        assert f'<section id="{section}">' in page, section
+    # every figure embedded as data; nothing fetched from anywhere
+    assert page.count('src="data:image/png;base64,') == 4  # anytime and ECDF of two problems
+    assert not re.search(r'(src|href)="(?!data:|#)', page)
+    assert "http://" not in page and "https://" not in page
+    assert 'class="dataframe sortable"' in page and "sweep/sphere/cmaes/seed0" in page
+
+
+def test_figures_are_150_dpi_with_a_pdf_beside_and_redrawn_only_when_their_data_change(built, tmp_path):
+    from PIL import Image
+
+    _, first, _ = built
+    png = first.parent / "figures" / "anytime_sphere.png"
+    with Image.open(png) as image:
+        assert round(image.info["dpi"][0]) == 150
+    assert png.with_suffix(".pdf").read_bytes().startswith(b"%PDF")
+    # a figure whose stored key no longer matches its data is redrawn (same bytes as a fresh one)
+    copy = tmp_path / "sweep"
+    shutil.copytree(first.parent.parent, copy)
+    stale = copy / "report" / "figures" / "anytime_sphere.png"
+    stale.write_bytes(b"not a png")
+    build_report([copy], paper_tables=False, log=None)
+    assert stale.read_bytes() == png.read_bytes()
