@@ -86,7 +86,7 @@ def median_run_index(values: np.ndarray, seeds: np.ndarray) -> int:
     return int(order[(len(order) - 1) // 2])
 
 
-def objective_profile(problem, n_points: int = 21) -> pd.DataFrame:
+def objective_profile(problem, n_points: int = 21, log: Callable[[str], None] | None = None) -> pd.DataFrame:
     """The objective along each variable across its bounds, the others at the truth (or the
     reference when the truth is unknown), in one batch of about ``n_points * d`` filter runs.
 
@@ -109,16 +109,34 @@ def objective_profile(problem, n_points: int = 21) -> pd.DataFrame:
         inside = bool(space.lower[i] <= anchor[i] <= space.upper[i])
         labels += [(name, space.units[i], v, v - anchor[i], inside, bool(space.lower[i] <= v <= space.upper[i]))
                    for v in grid]
-    X = np.concatenate(rows)
-    cal = problem.calibration_space.decode(X)
-    if hasattr(problem, "score"):  # the problem's own objective over its calibration drives
-        f = np.asarray(problem.score(cal)[0], float)
-    else:
-        result = problem.run_filter(cal, problem.sequence)
-        f = position_rmse_objective(result, problem.sequence.truth, problem.divergence_penalty_m)
+    f = []
+    started = time.perf_counter()
+    for name, X in zip(space.names, rows):  # one batch per variable (the filter is as fast at any batch size)
+        cal = problem.calibration_space.decode(X)
+        if hasattr(problem, "score"):  # the problem's own objective over its calibration drives
+            f.append(np.asarray(problem.score(cal)[0], float))
+        else:
+            result = problem.run_filter(cal, problem.sequence)
+            f.append(position_rmse_objective(result, problem.sequence.truth, problem.divergence_penalty_m))
+        if log:
+            log(f"    profile: {name} done ({len(X)} points, {time.perf_counter() - started:.1f} s so far)")
+    f = np.concatenate(f)
     frame = pd.DataFrame(labels, columns=["variable", "unit", "value", "offset", "anchor_in_bounds", "in_bounds"])
     frame.insert(4, "f", f)
     return frame
+
+
+def space_info(problem) -> dict:
+    """The problem's space as plain data: kind, names, units, bounds, reference, truth (or
+    None) and, per variable, whether the truth lies inside the bounds."""
+    space = problem.space
+    truth = None if problem.truth is None else [float(v) for v in problem.truth]
+    return {"kind": getattr(getattr(problem, "calibration_space", None), "kind", None),
+            "names": list(space.names), "units": list(space.units),
+            "lower": [float(v) for v in space.lower], "upper": [float(v) for v in space.upper],
+            "reference": [float(v) for v in space.reference], "truth": truth,
+            "truth_in_bounds": None if truth is None else
+            [bool(lo <= t <= hi) for t, lo, hi in zip(truth, space.lower, space.upper)]}
 
 
 def _sources(problem, records: list[dict]):
@@ -206,17 +224,11 @@ def compute(problem, problem_config: dict, records: list[dict], folder: Path, pr
     if profile_points > 0:
         started = time.perf_counter()
         log(f"  profiling the objective: {profile_points} points along each of {space.dim} variables")
-        profile = objective_profile(problem, profile_points)
+        profile = objective_profile(problem, profile_points, log)
         log(f"  profile done in {time.perf_counter() - started:.1f} s")
-    truth = None if problem.truth is None else [float(v) for v in problem.truth]
     manifest = {
         "schema": SCHEMA, "key": artifact_key(problem_config, records, profile_points),
-        "problem": problem.name, "problem_config": problem_config,
-        "space": {"kind": problem.calibration_space.kind, "names": list(space.names), "units": list(space.units),
-                  "lower": [float(v) for v in space.lower], "upper": [float(v) for v in space.upper],
-                  "reference": [float(v) for v in space.reference], "truth": truth,
-                  "truth_in_bounds": None if truth is None else
-                  [bool(lo <= t <= hi) for t, lo, hi in zip(truth, space.lower, space.upper)]},
+        "problem": problem.name, "problem_config": problem_config, "space": space_info(problem),
         "f_reference": problem.f_reference, "f_truth": problem.f_truth,
         "objective": getattr(problem, "objective", "position_rmse"),
         "drives": meta,

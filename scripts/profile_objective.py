@@ -4,7 +4,8 @@
 
 Evaluates the VIO position RMSE along each variable of the problem's space across its bounds
 (Table 1 for the paper space), the other variables at the truth (the reference when the truth
-is unknown), and writes ``profile.csv`` and ``profile.png``. It also prints, per variable, how
+is unknown; a truth outside the bounds is profiled and flagged), and writes ``profile.csv`` and
+``profile.png`` (linear scale, truth and reference marked, PDF beside). It also prints, per variable, how
 much the objective rises over the central 10% of the range around the truth and where its
 minimum lies: a flat profile or a minimum far from the truth means the objective does not
 determine that variable.
@@ -17,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.artifacts import objective_profile, space_info
 from bench.job import build_problem
-from bench.paper_figures import objective_profile, profile_figure
+from bench.paper_figures import profile_figure
 from bench.preflight import compose_job
 
 
@@ -47,7 +49,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     profile = objective_profile(problem, args.points)
     profile.to_csv(out / "profile.csv", index=False, float_format="%.6g")
-    profile_figure(profile, out / "profile.png", "truth" if problem.truth is not None else "reference")
+    profile_figure(profile, space_info(problem), out / "profile.png", getattr(problem, "objective", "position_rmse"))
     summarise(profile, problem)
     print(f"wrote {out / 'profile.csv'} and {out / 'profile.png'}")
 
