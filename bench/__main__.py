@@ -15,8 +15,6 @@ from __future__ import annotations
 import logging
 import os
 import sys
-import threading
-import time
 import uuid
 from pathlib import Path
 
@@ -25,7 +23,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from bench import callbacks
-from bench.job import plain, run_configured_job
+from bench.job import exit_with_the_sweep, plain, run_configured_job
 from bench.preflight import CONF_DIR, preflight_plan
 
 log = logging.getLogger("bench")
@@ -35,42 +33,9 @@ log = logging.getLogger("bench")
 OmegaConf.register_new_resolver("bench_unique", lambda: f"{os.getpid()}-{uuid.uuid4().hex[:6]}",
                                 use_cache=True, replace=True)
 
-_watching = threading.Event()
-
-
-def _exit_with_the_sweep() -> None:
-    """In a launcher's worker process: exit as soon as the sweep's main process is gone.
-
-    joblib's (loky) and submitit's workers would otherwise run their job to the end after the
-    sweep was killed, writing into a folder the user believes idle.
-    """
-    sweep_pid = int(os.environ.get("BENCH_SWEEP_PID") or 0)
-    if not sweep_pid or sweep_pid == os.getpid() or _watching.is_set():
-        return
-    _watching.set()
-    parent = os.getppid()
-
-    def watch() -> None:
-        while True:
-            time.sleep(0.5)
-            try:
-                os.kill(sweep_pid, 0)
-                alive = os.getppid() == parent
-            except ProcessLookupError:
-                alive = False
-            except PermissionError:  # exists, owned by someone else: not ours any more
-                alive = False
-            if not alive:
-                print(f"bench worker {os.getpid()}: the sweep (pid {sweep_pid}) is gone; exiting",
-                      file=sys.stderr, flush=True)
-                os._exit(3)
-
-    threading.Thread(target=watch, daemon=True, name="bench-sweep-watch").start()
-
-
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def _job(cfg: DictConfig) -> float | None:
-    _exit_with_the_sweep()
+    exit_with_the_sweep()  # in a launcher's worker: exit when the sweep is killed
     hc = HydraConfig.get()
     job_dir = Path(hc.runtime.output_dir)
     total = os.environ.get("BENCH_SWEEP_JOBS") or "?"

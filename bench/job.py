@@ -10,8 +10,11 @@ import importlib
 import json
 import logging
 import math
+import os
 import re
 import sys
+import threading
+import time
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -155,4 +158,38 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
         return {"status": "failed", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
 
 
-__all__ = ["ConfigError", "build_problem", "budget_of", "identity_of", "job_key", "plain", "run_configured_job"]
+_watching = threading.Event()
+
+
+def exit_with_the_sweep() -> None:
+    """In a launcher's worker process: exit as soon as the sweep's main process is gone.
+
+    joblib's (loky) and submitit's workers would otherwise run their job to the end after the
+    sweep was killed, writing into a folder the user believes idle.
+    """
+    sweep_pid = int(os.environ.get("BENCH_SWEEP_PID") or 0)
+    if not sweep_pid or sweep_pid == os.getpid() or _watching.is_set():
+        return
+    _watching.set()
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(sweep_pid, 0)
+                alive = os.getppid() == parent
+            except ProcessLookupError:
+                alive = False
+            except PermissionError:  # exists, owned by someone else: not ours any more
+                alive = False
+            if not alive:
+                print(f"bench worker {os.getpid()}: the sweep (pid {sweep_pid}) is gone; exiting",
+                      file=sys.stderr, flush=True)
+                os._exit(3)
+
+    threading.Thread(target=watch, daemon=True, name="bench-sweep-watch").start()
+
+
+__all__ = ["ConfigError", "build_problem", "budget_of", "exit_with_the_sweep", "identity_of", "job_key", "plain",
+           "run_configured_job"]

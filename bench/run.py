@@ -54,8 +54,7 @@ log = logging.getLogger(__name__)
 
 SCHEMA = 2
 ROOT = Path(__file__).resolve().parents[1]
-# the code that decides what an optimiser asks and what a problem returns; its hash is the code version
-CODE_PATHS = ("avio", "optimizers", "bench/problems", "bench/space.py", "bench/calibration_space.py")
+_SITE = Path(sys.prefix).resolve()
 
 
 class RunError(RuntimeError):
@@ -105,30 +104,49 @@ def _file_digest(path: str, mtime_ns: int, size: int) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def _code_files(classes) -> set[Path]:
+    """The source files of ``classes`` (their whole MRO) and of every module of this repository they
+    import, transitively (module globals that are modules or objects defined in one)."""
+    files: set[Path] = set()
+    seen: set[str] = set()
+    stack = [sys.modules.get(c.__module__) for cls in classes for c in inspect.getmro(cls) if c is not object]
+    first = {id(m) for m in stack}
+    while stack:
+        module = stack.pop()
+        if module is None or module.__name__ in seen:
+            continue
+        seen.add(module.__name__)
+        path = Path(getattr(module, "__file__", None) or "").resolve() if getattr(module, "__file__", None) else None
+        if path is None or path.suffix != ".py":
+            continue
+        ours = path.is_relative_to(ROOT) and not path.is_relative_to(_SITE)
+        if not ours and id(module) not in first:  # a library: its version is in the record's provenance
+            continue
+        files.add(path)
+        for value in vars(module).values():
+            name = value.__name__ if inspect.ismodule(value) else getattr(value, "__module__", None)
+            if isinstance(name, str) and name in sys.modules:
+                stack.append(sys.modules[name])
+    return files
+
+
 def code_version(*classes: type) -> dict:
-    """``{"sources": hash, "git_commit": ...}``: the hash covers every ``.py`` file under
-    ``CODE_PATHS`` and the files defining ``classes`` (out-of-tree plugins); the commit is informative
-    (an edit to an unrelated file must not block a resume)."""
-    files = set()
-    for rel in CODE_PATHS:
-        path = ROOT / rel
-        files.update(path.rglob("*.py") if path.is_dir() else [path] if path.exists() else [])
-    for cls in classes:
-        try:
-            files.add(Path(inspect.getsourcefile(cls)).resolve())
-        except (TypeError, OSError):  # a class without a source file (built-in, dynamic): nothing to hash
-            pass
+    """``{"sources": hash, "git_commit": ...}``. The hash covers the code that decides what the
+    optimiser asks and what the problem returns: the files defining ``classes`` and every module of
+    this repository they import (``_code_files``); so an edit elsewhere (the report, the README, an
+    unused module) does not block a resume. Data a problem builds lazily is covered by its
+    ``identity``. The commit is informative only."""
     digest = hashlib.sha256()
-    for path in sorted(files):
+    for path in sorted(_code_files(classes)):
         st = path.stat()
-        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else path.as_posix()
+        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else path.name
         digest.update(f"{rel}\0{_file_digest(str(path), st.st_mtime_ns, st.st_size)}\n".encode())
     return {"sources": digest.hexdigest()[:16], "git_commit": provenance()["git_commit"]}
 
 
 def job_header(identity: dict, problem: Problem, optimizer_class: type | None = None) -> dict:
     """What ``job.json`` holds: schema, job_key, config_hash, identity (the resolved config),
-    data (``problem.identity``), code (``code_version``)."""
+    data (``problem.identity``), code (``code_version`` of the problem's and optimiser's classes)."""
     classes = [type(problem)] + ([optimizer_class] if optimizer_class is not None else [])
     header = {"schema": SCHEMA, "config_hash": config_hash(identity), "identity": identity,
               "data": problem.identity, "code": code_version(*classes)}
