@@ -1,11 +1,12 @@
 """Trajectories to the text formats evo reads (TUM and KITTI), and back.
 
-- TUM: one line per pose, ``t tx ty tz qx qy qz qw`` (seconds, metres, unit quaternion with
+- TUM: one line per pose, ``t tx ty tz qx qy qz qw`` (seconds to 1 ns, metres, unit quaternion with
   the scalar last), space-separated; lines starting with ``#`` are comments.
 - KITTI: one line per pose, the 3x4 matrix ``[R | t]`` row-major (12 numbers), no time stamps.
 
 The pose written is ``T_world_imu``: ``R_world_imu`` (maps IMU vectors into the world frame) and
-``p_world_imu_m``. Files are written atomically (temporary file, then rename).
+``p_world_imu_m``. Numbers are written with 17 significant digits (they read back bit for bit). Files are
+written atomically (temporary file, then rename).
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def write_tum(path, t_s, p_world_imu_m, R_world_imu) -> None:
     xyzw = Rotation.from_matrix(R).as_quat()
     rows = np.column_stack([np.asarray(t_s, float), p, xyzw])
     lines = ["# timestamp tx ty tz qx qy qz qw  (T_world_imu)"]
-    lines += [" ".join(f"{x:.9f}" if i == 0 else f"{x:.12g}" for i, x in enumerate(r)) for r in rows]
+    lines += [" ".join(f"{x:.9f}" if i == 0 else f"{x:.17g}" for i, x in enumerate(r)) for r in rows]
     _atomic_write(path, "\n".join(lines) + "\n")
 
 
@@ -63,7 +64,7 @@ def write_kitti(path, p_world_imu_m, R_world_imu) -> None:
     """Write the 3x4 ``[R | t]`` of each pose row-major, 12 numbers a line."""
     p, R = _check(p_world_imu_m, R_world_imu)
     M = np.concatenate([R, p[:, :, None]], axis=2).reshape(len(p), 12)
-    _atomic_write(path, "\n".join(" ".join(f"{x:.12g}" for x in r) for r in M) + "\n")
+    _atomic_write(path, "\n".join(" ".join(f"{x:.17g}" for x in r) for r in M) + "\n")
 
 
 def _read_rows(path, width: int) -> np.ndarray:

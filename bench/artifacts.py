@@ -110,7 +110,7 @@ def objective_profile(problem, n_points: int = 21, log: Callable[[str], None] | 
         labels += [(name, space.units[i], v, v - anchor[i], inside, bool(space.lower[i] <= v <= space.upper[i]))
                    for v in grid]
     f = []
-    started = time.perf_counter()
+    started = last = time.perf_counter()
     for name, X in zip(space.names, rows):  # one batch per variable (the filter is as fast at any batch size)
         cal = problem.calibration_space.decode(X)
         if hasattr(problem, "score"):  # the problem's own objective over its calibration drives
@@ -118,8 +118,9 @@ def objective_profile(problem, n_points: int = 21, log: Callable[[str], None] | 
         else:
             result = problem.run_filter(cal, problem.sequence)
             f.append(position_rmse_objective(result, problem.sequence.truth, problem.divergence_penalty_m))
-        if log:
-            log(f"    profile: {name} done ({len(X)} points, {time.perf_counter() - started:.1f} s so far)")
+        if log and time.perf_counter() - last >= 5.0:  # a line every 5 s or so, not one per variable
+            last = time.perf_counter()
+            log(f"    profile: up to {name} done ({last - started:.1f} s so far)")
     f = np.concatenate(f)
     frame = pd.DataFrame(labels, columns=["variable", "unit", "value", "offset", "anchor_in_bounds", "in_bounds"])
     frame.insert(4, "f", f)

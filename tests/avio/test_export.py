@@ -50,3 +50,13 @@ def test_bad_line_names_file_and_line(tmp_path):
     f.write_text("# header\n0 1 2 3 0 0 0 1\n1 2 3\n")
     with pytest.raises(ExportError, match=r"bad.tum:3: expected 8"):
         read_tum(f)
+
+
+def test_numbers_read_back_bit_for_bit(tmp_path):
+    t, p, R = _trajectory(seed=2)
+    write_kitti(tmp_path / "est.kitti", p, R)
+    p2, R2 = read_kitti(tmp_path / "est.kitti")
+    assert np.array_equal(p2, p) and np.array_equal(R2, R)
+    write_tum(tmp_path / "est.tum", t, p, R)
+    _, p3, _ = read_tum(tmp_path / "est.tum")
+    assert np.array_equal(p3, p)
