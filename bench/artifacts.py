@@ -316,6 +316,10 @@ def load_or_compute(problem_config: dict, records: list[dict], store: Path, *, p
         raise ArtifactError(f"cannot rebuild problem {problem_config.get('name')!r} from the records' config "
                             f"({type(err).__name__}: {err})") from None
     log(f"  problem built in {time.perf_counter() - started:.1f} s")
-    art = compute(problem, problem_config, records, folder, profile_points, log)
+    try:
+        art = compute(problem, problem_config, records, folder, profile_points, log)
+    except ValueError as err:  # ProblemError, FilterError, MetricsError, SequenceError: said, not hidden
+        raise ArtifactError(f"running the VIO for the tables of {problem_config.get('name')!r} failed "
+                            f"({type(err).__name__}: {err})") from None
     log(f"  artifacts done in {time.perf_counter() - started:.1f} s")
     return art

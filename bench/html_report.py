@@ -161,6 +161,13 @@ LEADERBOARD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median
                        "evals_median", "seconds_median", "p_vs_leader", "vs_leader"]
 
 
+def _leaderboard_columns(board: pd.DataFrame) -> list[str]:
+    """The leaderboard's own columns (its schema is ``bench.leaderboard``'s): the usual ones first,
+    then every other column but the problem, in the leaderboard's order."""
+    first = [c for c in LEADERBOARD_COLUMNS if c in board.columns]
+    return first + [c for c in board.columns if c not in first and c != "problem"]
+
+
 def _problems(runs: pd.DataFrame) -> list[str]:
     return sorted(runs["problem"].unique())
 
@@ -247,7 +254,7 @@ def build_page(*, roots, records, runs, board, avg, pairs, vs, ert, targets, fig
         anytime_png, ecdf_png = figures[problem]
         lead.append(f"<h3>{html.escape(problem)}</h3>" + paragraph(
             f"best f in the problem's objective units; significance: {test}, Holm-corrected against the "
-            f"leader, alpha = {alpha:g}.", "note") + table_html(b[[c for c in LEADERBOARD_COLUMNS if c in b.columns]]))
+            f"leader, alpha = {alpha:g}.", "note") + table_html(b[_leaderboard_columns(b)]))
         stats.append(f"<h3>{html.escape(problem)}: pairwise comparisons</h3>"
                      + paragraph("A12 = P(f_a < f_b) + ½P(f_a = f_b); p_holm corrected over all pairs of this problem.", "note")
                      + table_html(pairs[pairs["problem"] == problem].drop(columns="problem"))

@@ -98,6 +98,7 @@ def _paper_tables(dirs: list[Path], out: Path, recompute: bool, log) -> tuple[li
     try:
         return [Path(p) for p in build_tables(dirs, out / "tables", recompute=recompute, log=log)], ""
     except TablesError as err:
+        log(f"report: the paper's tables were not built: {err}")
         return [], f"Not built: {err}."
 
 
@@ -226,7 +227,7 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
             "",
             f"### Leaderboard (significance: {test}, Holm-corrected against the leader, alpha = {alpha:g})",
             "",
-            _md_table(b[LEADERBOARD_MD_COLUMNS]),
+            _md_table(b[[c for c in LEADERBOARD_MD_COLUMNS if c in b.columns]]),
             "",
         ]
         metrics = [c for c in extra_metrics if b[c].notna().any()]
