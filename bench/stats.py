@@ -15,9 +15,14 @@ Choices, documented once here:
 - **Degenerate samples.** Fewer than 2 valid runs on either side: no test is possible, the
   p-value is NaN (and stays NaN after correction). All values identical on both sides (or all
   paired differences zero): p = 1 — there is no difference to detect.
-- **Multiple comparisons.** Holm's step-down correction over the family of tests with a finite
-  p-value: all pairs of optimisers within a problem (``pairwise``), or every optimiser against
-  the problem's leader (``versus_leader``).
+- **Multiple comparisons.** Holm's step-down correction over one family per problem: the tests
+  with a finite p-value among all pairs of optimisers of the problem (``family_size`` of them).
+  ``versus_leader`` takes its adjusted p from that same family, so the leaderboard's verdict and
+  the pairwise table agree for every pair with the leader (a smaller family, leader comparisons
+  only, would be more powerful but would contradict the pairwise table).
+- **Grouping.** ``problem`` and ``optimizer`` are the labels of ``bench.leaderboard.runs_table``,
+  one per job identity (settings that differ are in the label); a seed twice in one group is an
+  error (``StatsError``), never counted twice.
 - **Effect size.** Vargha–Delaney A12(a, b) = P(f_a < f_b) + ½ P(f_a = f_b): the probability
   that a run of a ends lower (better) than a run of b; 0.5 is no effect. Magnitude labels use
   Vargha & Delaney's thresholds on |A12 - 0.5|: 0.06 small, 0.14 medium, 0.21 large.
@@ -134,13 +139,20 @@ def _valid(runs: pd.DataFrame) -> pd.DataFrame:
     missing = {"problem", "optimizer", "seed", "valid", "best_f"} - set(runs.columns)
     if missing:
         raise StatsError(f"runs table lacks the columns {sorted(missing)}")
+    dup = runs.duplicated(["problem", "optimizer", "seed"], keep=False)
+    if dup.any():
+        first = runs[dup].iloc[0]
+        raise StatsError(f"seed {first['seed']} of {first['problem']}/{first['optimizer']} appears "
+                         f"{int(dup.sum())} times: one run per seed and job identity")
     return runs[runs["valid"]]
 
 
 def summary(runs: pd.DataFrame, seed: int = 0, confidence: float = 0.95) -> pd.DataFrame:
-    """Per (problem, optimizer) over valid runs: n_valid, median, q25, q75, iqr, and the
-    bootstrap CI of the median (``median_ci_low``, ``median_ci_high``). Groups with no valid
-    run appear with n_valid 0 and NaN statistics."""
+    """Per (problem, optimizer) over valid runs: n_valid, median, q25, q75, iqr, the bootstrap CI
+    of the median (``median_ci_low``, ``median_ci_high``) and its level (``ci_level``). Groups
+    with no valid run appear with n_valid 0 and NaN statistics."""
+    if not 0 < confidence < 1:
+        raise StatsError(f"confidence must be in (0, 1), got {confidence!r}")
     rows = []
     valid = _valid(runs)
     for (problem, optimizer), _ in runs.groupby(["problem", "optimizer"], sort=True):
@@ -149,8 +161,10 @@ def summary(runs: pd.DataFrame, seed: int = 0, confidence: float = 0.95) -> pd.D
         q25, med, q75 = np.quantile(f, [0.25, 0.5, 0.75]) if f.size else (np.nan,) * 3
         lo, hi = median_ci(f, _group_rng(seed, problem, optimizer), confidence)
         rows.append((problem, optimizer, f.size, med, q25, q75, q75 - q25, lo, hi))
-    return pd.DataFrame(rows, columns=["problem", "optimizer", "n_valid", "median", "q25", "q75",
-                                       "iqr", "median_ci_low", "median_ci_high"])
+    out = pd.DataFrame(rows, columns=["problem", "optimizer", "n_valid", "median", "q25", "q75",
+                                      "iqr", "median_ci_low", "median_ci_high"])
+    out["ci_level"] = confidence
+    return out
 
 
 def _samples(valid: pd.DataFrame, problem: str, optimizer: str) -> pd.Series:
@@ -175,24 +189,36 @@ def _pair_row(problem, a, b, fa, fb, pairing):
             "a12_magnitude": a12_magnitude(effect)}
 
 
+def _check_alpha(alpha: float) -> None:
+    if not 0 < alpha < 1:
+        raise StatsError(f"alpha must be in (0, 1), got {alpha!r}")
+
+
 def _finish(rows: list[dict], alpha: float, columns: list[str]) -> pd.DataFrame:
-    table = pd.DataFrame(rows, columns=columns[:-2])
+    table = pd.DataFrame(rows, columns=columns[:-4])
     table["p_holm"] = np.nan
+    table["family_size"] = 0
     for _, idx in table.groupby("problem", sort=False).groups.items():
         table.loc[idx, "p_holm"] = holm(table.loc[idx, "p_value"].to_numpy(float))
-    table["significant"] = np.where(table["p_holm"].isna(), "n/a",
-                                    np.where(table["p_holm"] < alpha, "yes", "no"))
+        table.loc[idx, "family_size"] = int(table.loc[idx, "p_value"].notna().sum())
+    table["significant"] = _significance(table["p_holm"], alpha)
+    table["alpha"] = alpha
     return table[columns]
 
 
+def _significance(p_holm: pd.Series, alpha: float) -> np.ndarray:
+    return np.where(p_holm.isna(), "n/a", np.where(p_holm < alpha, "yes", "no"))
+
+
 _PAIR_COLUMNS = ["problem", "a", "b", "n_a", "n_b", "median_a", "median_b", "test", "statistic",
-                 "p_value", "a12", "a12_magnitude", "p_holm", "significant"]
+                 "p_value", "a12", "a12_magnitude", "p_holm", "family_size", "significant", "alpha"]
 
 
 def pairwise(runs: pd.DataFrame, pairing: str = "none", alpha: float = 0.05) -> pd.DataFrame:
     """Every pair (a, b) of optimisers within each problem, a < b by name: sizes, medians, test,
     statistic, raw and Holm-adjusted p (family: the problem's pairs), significance at ``alpha``
     ("yes"/"no"/"n/a" when untestable), A12(a, b) and its magnitude."""
+    _check_alpha(alpha)
     valid = _valid(runs)
     rows = []
     for problem, group in runs.groupby("problem", sort=True):
@@ -210,12 +236,17 @@ def leaders(summary_table: pd.DataFrame) -> pd.Series:
 
 def versus_leader(runs: pd.DataFrame, summary_table: pd.DataFrame, pairing: str = "none",
                   alpha: float = 0.05) -> pd.DataFrame:
-    """Each optimiser (a) against its problem's leader (b); Holm over the problem's comparisons.
+    """Each optimiser (a) against its problem's leader (b), with Holm's correction over the family
+    of all the problem's pairs (``pairwise``'s ``p_holm`` for that pair; see the module doc).
 
     Same columns as ``pairwise``; the leader itself has no row.
     """
+    _check_alpha(alpha)
     valid = _valid(runs)
     lead = leaders(summary_table)
+    pairs = pairwise(runs, pairing, alpha)
+    adjusted = {(r.problem, frozenset((r.a, r.b))): (r.p_holm, r.family_size)
+                for r in pairs.itertuples(index=False)}
     rows = []
     for problem, group in runs.groupby("problem", sort=True):
         if problem not in lead.index:
@@ -224,7 +255,13 @@ def versus_leader(runs: pd.DataFrame, summary_table: pd.DataFrame, pairing: str 
         for a in sorted(set(group["optimizer"]) - {leader}):
             rows.append(_pair_row(problem, a, leader, _samples(valid, problem, a),
                                   _samples(valid, problem, leader), pairing))
-    return _finish(rows, alpha, _PAIR_COLUMNS)
+    table = pd.DataFrame(rows, columns=_PAIR_COLUMNS[:-4])
+    found = [adjusted[(r.problem, frozenset((r.a, r.b)))] for r in table.itertuples(index=False)]
+    table["p_holm"] = [p for p, _ in found] if found else np.nan
+    table["family_size"] = [n for _, n in found] if found else 0
+    table["significant"] = _significance(table["p_holm"], alpha)
+    table["alpha"] = alpha
+    return table[_PAIR_COLUMNS]
 
 
 def ranks(summary_table: pd.DataFrame) -> pd.DataFrame:

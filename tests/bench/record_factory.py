@@ -30,6 +30,9 @@ def write_job(
     wall_s: float | None = None,
     error: dict | None = None,
     name: str | None = None,
+    problem_params: dict | None = None,
+    optimizer_params: dict | None = None,
+    f_unit: str | None = None,
 ) -> Path:
     """Write one job folder under ``root`` and return its path.
 
@@ -37,6 +40,8 @@ def write_job(
     t_batches: ``t_end_s`` of each batch (seconds since job start); default 1 s per batch.
     metrics_batches: per batch, ``{metric name: values}`` aligned with that batch's f values.
     status: "ok" or "failed"; a failed job's ``error`` defaults to a RuntimeError entry.
+    problem_params / optimizer_params: the config's ``params`` sections (they and the budget are
+    the job identity the leaderboard groups by); f_unit: the record's unit of f.
     The point X of each evaluation is ``[f, seed]`` (2-D space named a, b): content is irrelevant here.
     """
     job = Path(root) / (name or f"{problem}/{optimizer}/seed{seed}")
@@ -66,9 +71,11 @@ def write_job(
     if status == "failed" and error is None:
         error = {"type": "RuntimeError", "message": "synthetic failure", "traceback": "..."}
     record = {
-        "schema": 1, "status": status, "error": error, "problem": problem, "optimizer": optimizer,
+        "schema": 2, "job_key": f"{problem}/{optimizer}/{seed}", "status": status, "error": error,
+        "problem": problem, "optimizer": optimizer, "f_unit": f_unit,
         "seed": seed, "budget": {"evals": budget_evals, "seconds": None},
-        "config": {"problem": {"name": problem}, "optimizer": {"name": optimizer}, "seed": seed},
+        "config": {"problem": {"name": problem, "params": problem_params or {}},
+                   "optimizer": {"name": optimizer, "params": optimizer_params or {}}, "seed": seed},
         "space": {"names": ["a", "b"], "units": ["", ""], "lower": [-1e9, -1e9], "upper": [1e9, 1e9],
                   "reference": [0.0, 0.0]},
         "truth_x": None, "f_truth": f_truth, "f_reference": f_reference,

@@ -93,3 +93,62 @@ def test_a_record_missing_a_required_field_is_named(tmp_path):
     write_job(tmp_path, "p", "b", 0, [[1.0]])
     with pytest.raises(LeaderboardError, match=r"p/a/seed0/record.json: missing the field 'optimizer'"):
         runs_table(load_records([tmp_path]))
+
+
+def test_sweeps_with_different_budgets_are_split_not_pooled(tmp_path):
+    # defect 4: a 2000- and a 500-evaluation sweep reported together gave one row with seed 0 counted twice
+    for seed in range(3):
+        write_job(tmp_path / "long", "sphere", "random", seed, [[1.0 + seed], [0.1 * seed]], budget_evals=2000)
+        write_job(tmp_path / "short", "sphere", "random", seed, [[5.0 + seed]], budget_evals=500)
+    board = board_from(tmp_path).set_index("problem")
+    assert sorted(board.index) == ["sphere[budget.evals=2000]", "sphere[budget.evals=500]"]
+    assert (board["n_runs"] == 3).all()
+    assert board.loc["sphere[budget.evals=500]", "best_f_median"] == 6.0
+    runs = runs_table(load_records([tmp_path]))
+    assert set(runs["problem_name"]) == {"sphere"} and runs.groupby("problem")["seed"].apply(list).tolist() == \
+        [[0, 1, 2], [0, 1, 2]]
+
+
+def test_data_seeds_and_optimizer_settings_are_split(tmp_path):
+    for seed in range(2):
+        for data_seed in (0, 1):
+            write_job(tmp_path / f"d{data_seed}", "synthetic", "pso", seed, [[1.0 + data_seed]],
+                      problem_params={"data_seed": data_seed}, optimizer_params={"pop_size": 20})
+        write_job(tmp_path / "small", "synthetic", "pso", seed, [[3.0]], problem_params={"data_seed": 0},
+                  optimizer_params={"pop_size": 10})
+    board = board_from(tmp_path)
+    assert sorted(zip(board["problem"], board["optimizer"])) == [
+        ("synthetic[data_seed=0]", "pso[pop_size=10]"), ("synthetic[data_seed=0]", "pso[pop_size=20]"),
+        ("synthetic[data_seed=1]", "pso")]
+
+
+def test_a_seed_recorded_twice_is_refused_naming_both_folders(tmp_path):
+    write_job(tmp_path / "a", "sphere", "random", 0, [[1.0]], budget_evals=500)
+    write_job(tmp_path / "b", "sphere", "random", 0, [[2.0]], budget_evals=500)
+    with pytest.raises(LeaderboardError, match=r"seed 0 of sphere/random is in 2 records .*a/sphere/random/seed0.*"
+                                               r"b/sphere/random/seed0.*counted twice"):
+        runs_table(load_records([tmp_path]))
+
+
+def test_columns_carry_unit_ci_level_correction_verdict_and_threshold(tmp_path):
+    for seed in range(6):
+        write_job(tmp_path, "vio", "good", seed, [[0.1 + 0.01 * seed]], f_truth=0.1, f_unit="m")
+        write_job(tmp_path, "vio", "bad", seed, [[9.0 + seed]], f_truth=0.1, f_unit="m")
+        write_job(tmp_path, "vio", "same", seed, [[0.1 + 0.01 * seed]], f_truth=0.1, f_unit="m")
+    board = board_from(tmp_path).set_index("optimizer")
+    assert (board["f_unit"] == "m").all() and (board["ci_level"] == 0.95).all() and (board["alpha"] == 0.05).all()
+    assert board.loc["good", "main_target_threshold"] == pytest.approx(0.105)
+    assert board[["verdict"]].to_dict()["verdict"] == {"good": "leader", "bad": "worse", "same": "not different"}
+    assert board.loc["bad", "p_holm_vs_leader"] == board.loc["bad", "p_vs_leader"]
+    assert (board["p_holm_family"] == 3).all()  # all three pairs of the problem, as in the pairwise table
+
+
+def test_the_schema_is_the_same_for_every_problem(tmp_path):
+    write_job(tmp_path / "a", "sphere", "random", 0, [[1.0]])
+    write_job(tmp_path / "b", "vio", "random", 0, [[1.0]], metrics_batches=[{"rotation_error_deg": [0.3]}],
+              f_unit="m")
+    alone = {p: list(board_from(tmp_path / p).columns) for p in ("a", "b")}
+    both = board_from(tmp_path)
+    assert set(alone["a"]) - {"distance_to_optimum_median"} <= set(alone["b"]) <= set(both.columns)
+    for col in ("f_unit", "ci_level", "main_target_threshold", "p_holm_vs_leader", "p_holm_family", "verdict"):
+        assert col in alone["a"] and col in alone["b"]

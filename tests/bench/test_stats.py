@@ -143,4 +143,37 @@ def test_versus_leader_compares_everyone_with_the_lowest_median():
     assert set(table["b"]) == {"b"} and list(table["a"]) == ["a", "c"]
     raw = table.set_index("a")["p_value"]
     assert raw["a"] == pytest.approx(sps.mannwhitneyu([5, 6, 7, 8, 9], [0, 1, 2, 3, 4]).pvalue)
-    np.testing.assert_allclose(table["p_holm"], holm(table["p_value"].to_numpy()))
+    # Holm over the problem's family of all pairs (a-b, a-c, b-c), as in the pairwise table
+    pairs = pairwise(runs)
+    family = holm(pairs["p_value"].to_numpy())
+    by_pair = {frozenset((a, b)): p for a, b, p in zip(pairs["a"], pairs["b"], family)}
+    np.testing.assert_allclose(table["p_holm"], [by_pair[frozenset(("a", "b"))], by_pair[frozenset(("c", "b"))]])
+    assert (table["family_size"] == 3).all()
+
+
+def test_leaderboard_and_pairwise_significance_agree_pair_by_pair():
+    # the leaderboard used Holm over the k-1 leader comparisons, the pairwise table over all pairs:
+    # the same pair could be "significant" in one and not in the other
+    rng = np.random.default_rng(1)
+    runs = runs_frame({("p", o): list(rng.normal(mu, 1.0, 8)) for o, mu in
+                       zip("abcde", (0.0, 0.9, 1.1, 1.3, 3.0))})
+    vs = versus_leader(runs, summary(runs))
+    pairs = pairwise(runs).set_index(["a", "b"])
+    for row in vs.itertuples(index=False):
+        pair = pairs.loc[tuple(sorted((row.a, row.b)))]
+        assert (row.p_holm, row.significant) == (pair["p_holm"], pair["significant"])
+
+
+def test_a_seed_twice_in_one_group_is_refused():
+    runs = runs_frame({("p", "a"): [1.0, 2.0]})
+    runs.loc[1, "seed"] = 0
+    with pytest.raises(StatsError, match="seed 0 of p/a appears 2 times"):
+        summary(runs)
+
+
+def test_alpha_and_confidence_outside_zero_one_are_refused():
+    runs = runs_frame({("p", "a"): [1.0, 2.0], ("p", "b"): [3.0, 4.0]})
+    with pytest.raises(StatsError, match="alpha must be in"):
+        pairwise(runs, alpha=2)
+    with pytest.raises(StatsError, match="confidence must be in"):
+        summary(runs, confidence=1.5)
