@@ -173,11 +173,11 @@ def leading_optimizer(records: list[dict]) -> str:
     return sorted(medians.items(), key=lambda kv: (kv[1], kv[0]))[0][0]
 
 
-def _figures(art: Artifacts, records: list[dict], out: Path) -> list[Path]:
+def _figures(art: Artifacts, records: list[dict], out: Path, log) -> list[Path]:
     from bench import paper_figures
 
     space = art.manifest["space"]
-    written = paper_figures.convergence_figures(space, records, out)
+    written = paper_figures.convergence_figures(space, records, out, log)
     written += paper_figures.trajectory_figures(art, leading_optimizer(records), out)
     if art.profile is not None:
         art.profile.to_csv(out / "profile.csv", index=False, float_format="%.6g", lineterminator="\n")
@@ -231,7 +231,7 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
                                   _drive_caption(art, table, which, paper), False)
         if figures:
             log(f"drawing the paper's figures for {name}")
-            written += _figures(art, group, folder / "figures")
+            written += _figures(art, group, folder / "figures", log)
     return written
 
 
