@@ -53,7 +53,7 @@ def help_text() -> str:
 
     primary = OmegaConf.load(CONF_DIR / "config.yaml")
     sweep = OmegaConf.to_container(primary.hydra.sweeper.params)
-    defaults = {k: v for d in primary.defaults if isinstance(d, dict) for k, v in d.items()}
+    defaults = {k: v for d in OmegaConf.to_container(primary.defaults) if isinstance(d, dict) for k, v in d.items()}
     problem_yamls = sorted(p.stem for p in (CONF_DIR / "problem").glob("*.yaml"))
     return "\n".join([
         "avio-bench (python -m bench): calibrate a visual-inertial odometry with black-box optimisers.",

@@ -120,3 +120,52 @@ def test_a_corrupt_data_file_is_one_message_naming_file_and_line(tmp_path, capsy
     code, out = _main_exit(["problem=kitti00", "optimizer=random", f"problem.params.data_dir={tmp_path / 'data'}",
                             f"hydra.sweep.dir={tmp_path / 'sweep'}"], capsys)
     assert code == 2 and "KITTI_00_gt.txt" in out and "42" in out and "Traceback" not in out
+
+
+def test_help_names_problems_optimisers_and_the_default_sweep(capsys, monkeypatch):
+    from bench.__main__ import main
+
+    monkeypatch.setattr(sys, "argv", ["avio-bench", "--help"])  # the console script calls main() with no argv
+    main()
+    out = capsys.readouterr().out
+    import optimizers
+
+    for name in optimizers.available():
+        assert name in out
+    for problem in ("synthetic", "sphere", "kitti00"):
+        assert problem in out
+    assert "Default sweep: problem=synthetic, optimizer=psoga,pso,ga,cmaes,tpe,random, seed=range(0,3)" in out
+    assert "Hydra" not in out.splitlines()[0] and "Powered by Hydra" not in out
+
+
+def test_hydra_shell_completion_still_works(tmp_path):
+    import os
+
+    proc = bench("-sc", "install=bash", cwd=tmp_path)
+    assert proc.returncode == 0 and "hydra_bash_completion()" in proc.stdout and "complete -o nospace" in proc.stdout
+    line = "avio-bench optimizer=ps"  # what bash hands the script's helper on a tab
+    query = subprocess.run([sys.executable, "-m", "bench", "-sc", "query=bash"], cwd=tmp_path, capture_output=True,
+                           text=True, timeout=120, env={**os.environ, "COMP_LINE": line, "COMP_POINT": str(len(line))})
+    assert query.returncode == 0 and query.stdout.split() == ["optimizer=pso", "optimizer=psoga"]
+
+
+def test_a_read_only_sweep_folder_is_one_message(tmp_path, monkeypatch):
+    from bench import preflight
+
+    monkeypatch.setattr(preflight, "_writable", lambda folder: False)  # root ignores chmod, so the probe is replaced
+    with pytest.raises(preflight.ConfigError, match=r"hydra.sweep.dir=.*: cannot write in .* \(read-only"):
+        preflight.check_sweep_dir(tmp_path / "sweep")
+
+
+def test_the_probe_sees_a_folder_that_refuses_writes(tmp_path):
+    import os
+
+    from bench.preflight import _writable
+
+    assert _writable(tmp_path)
+    if os.geteuid() != 0:
+        tmp_path.chmod(0o555)
+        try:
+            assert not _writable(tmp_path)
+        finally:
+            tmp_path.chmod(0o755)
