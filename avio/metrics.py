@@ -83,12 +83,14 @@ SEGMENT_START_STEP = 10  # frames between segment starts, as in the KITTI devkit
 def segment_lengths_m(path_length_m: float) -> tuple[np.ndarray, bool]:
     """The segment lengths (m) drift is averaged over on a drive of ``path_length_m``, and
     whether they are KITTI's: KITTI's 100, 200, ..., 800 m that are shorter than the path;
-    when none is (a drive under 100 m), 10, 20, ... m up to the longest multiple of 10 m
-    shorter than the path (none for a drive of 10 m or less)."""
+    when none is (a drive of 100 m or less), every multiple of 10 m shorter than the path; on a
+    drive of 10 m or less (a room-sized flight), every multiple of 1 m shorter than it (none
+    for a path of 1 m or less)."""
     kitti = np.array([L for L in KITTI_SEGMENTS_M if L < path_length_m])
     if kitti.size:
         return kitti, True
-    short = SHORT_SEGMENT_STEP_M * np.arange(1, int(np.ceil(path_length_m / SHORT_SEGMENT_STEP_M)))
+    step = SHORT_SEGMENT_STEP_M if path_length_m > SHORT_SEGMENT_STEP_M else 1.0
+    short = step * np.arange(1, int(np.ceil(path_length_m / step)) + 1)
     return short[short < path_length_m], False
 
 
@@ -119,7 +121,8 @@ def drift_metrics(p_est: np.ndarray, R_est: np.ndarray, truth: GroundTruth) -> d
       NaN on a drive shorter than 100 m;
     - ``r_rel_deg_per_100m``: mean over the same segments of ``100 angle(E) / L`` (deg/100 m);
     - ``drift_m_per_m``: mean of ``|t(E)| / L`` (m/m) over the segments used — the KITTI ones,
-      or on a drive under 100 m the 10 m steps below its length; NaN on a drive of <= 10 m;
+      or on shorter drives the 10 m (or, up to 10 m, 1 m) steps below the path length; NaN when
+      no segment fits (a path of 1 m or less);
     - ``max_jump_m``: the largest one-frame position jump error,
       ``max_i |(p_est,i+1 - p_est,i) - (p_true,i+1 - p_true,i)|`` (m).
 

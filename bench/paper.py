@@ -31,7 +31,16 @@ _DATA = {
     "kitti00": "ours: KITTI 00 real IMU and ground truth, simulated camera",
     "kitti00_tracks": "ours: all real (KITTI 00 IMU, ground truth and feature tracks)",
     "kitti_raw": "ours: all real (KITTI raw drive, OXTS truth, KLT tracks)",
+    "euroc": "ours: all real (EuRoC MAV, Vicon truth; errors against Kalibr)",
 }
+# Problems whose camera is the KITTI 2011_10_03 one of the paper's Table 1
+_KITTI_CAMERA = ("synthetic", "kitti00", "kitti00_tracks", "kitti_raw")
+
+
+def table1_applies(problem_name: str) -> bool:
+    """Whether the paper's Table 1 (KITTI's camera: its bounds, reference and PSO-GA result)
+    belongs beside this problem's calibrations."""
+    return problem_name in _KITTI_CAMERA
 
 
 def paper_drive(problem_config: dict, which: str) -> str | None:

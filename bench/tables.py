@@ -35,7 +35,7 @@ import pandas as pd
 from avio.reference import PAPER_TABLE1
 from bench import problems
 from bench.artifacts import DRIFT_KEYS, STATES, ArtifactError, Artifacts, load_or_compute, median_run_index
-from bench.paper import PAPER_DATA, PAPER_TABLE23, data_label, paper_drive
+from bench.paper import PAPER_DATA, PAPER_TABLE23, data_label, paper_drive, table1_applies
 from bench.records import RecordError, find_job_dirs, read_record
 
 UNITS = {"position": "m", "velocity": "m/s", "attitude": "deg"}
@@ -80,13 +80,16 @@ def table1(art: Artifacts) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     cal = art.calibrations
     paper_cols = [f"paper.{n}" for n in names]
     source = lambda s: cal[cal["source"] == s]  # noqa: E731
-    rows = {"reference (ours)": source("reference")[paper_cols].to_numpy()[0],
-            "lower (paper Table 1)": [PAPER_TABLE1[n][1] for n in names],
-            "upper (paper Table 1)": [PAPER_TABLE1[n][2] for n in names]}
+    paper = table1_applies(art.manifest["problem"])
+    rows = {"reference (ours)": source("reference")[paper_cols].to_numpy()[0]}
+    if paper:
+        rows["lower (paper Table 1)"] = [PAPER_TABLE1[n][1] for n in names]
+        rows["upper (paper Table 1)"] = [PAPER_TABLE1[n][2] for n in names]
     if len(source("truth")):
         rows["truth"] = source("truth")[paper_cols].to_numpy()[0]
-    rows["PSO-GA (paper, real KITTI)"] = [PAPER_TABLE1[n][3] for n in names]
-    rows["reference (paper)"] = [PAPER_TABLE1[n][0] for n in names]
+    if paper:
+        rows["PSO-GA (paper, real KITTI)"] = [PAPER_TABLE1[n][3] for n in names]
+        rows["reference (paper)"] = [PAPER_TABLE1[n][0] for n in names]
     runs = cal[cal["source"] == "run"]
     for opt, group in runs.groupby("optimizer", sort=True):
         values = group[paper_cols].to_numpy()
@@ -218,9 +221,10 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
         name = art.manifest["problem"]
         folder = Path(out) if len(groups) == 1 else Path(out) / group[0]["problem"]
         values, errors = table1(art)
+        beside = ("PSO-GA, reference and bounds (paper): the paper's Table 1, real KITTI" if table1_applies(name)
+                  else "the paper's Table 1 is for another camera and is not shown")
         written += _write(values, folder, "table1", f"Table 1 ({name}): calibration values in the paper's "
-                          f"variables ({data_label(name)}; PSO-GA and reference (paper): the paper's, real KITTI)."
-                          + _outside_note(art), True)
+                          f"variables ({data_label(name)}; {beside})." + _outside_note(art), True)
         if errors is not None:
             written += _write(errors, folder, "table1_errors",
                               f"Table 1b ({name}): calibration errors against the truth." + _outside_note(art), True)

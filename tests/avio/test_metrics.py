@@ -78,7 +78,8 @@ def test_segment_lengths_follow_the_documented_rule():
     lengths, kitti = segment_lengths_m(63.0)
     assert not kitti and lengths.tolist() == [10, 20, 30, 40, 50, 60]
     assert segment_lengths_m(60.0)[0].tolist() == [10, 20, 30, 40, 50]
-    assert segment_lengths_m(8.0)[0].size == 0
+    assert segment_lengths_m(4.7)[0].tolist() == [1, 2, 3, 4]  # a room-sized flight: 1 m steps
+    assert segment_lengths_m(1.0)[0].size == 0
 
 
 def test_scale_drift_gives_the_hand_computed_t_rel():
