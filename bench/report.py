@@ -298,6 +298,19 @@ _DEFINITIONS = """## Definitions
 - **ECDF**: fraction of (run, target) pairs of a problem hit within a budget, over all runs.
 - **Anytime curves**: best-so-far f at batch ends; median and inter-quartile band over runs;
   a run that stopped keeps its final value.
+- **Tables 2–3 rows**: per optimiser and state, the run (seed) whose RMSE of that state is the
+  median over its seeds (the lower middle one for an even count), with that run's mean, std and
+  drift: every number of a row comes from one run. The paper's values stand beside ours only on
+  the drives that stand for the paper's (a simulated or replayed ~540 m / ~928 m drive), and
+  the captions say what is real and what is simulated.
+- **Drift** (KITTI odometry devkit): over segments starting every 10 frames, `t_rel` = mean
+  translation error / length (%) and `r_rel` = mean rotation error / length (deg/100 m) over
+  segments of 100–800 m shorter than the drive; `drift_m_per_m` the same per metre (on drives
+  of 100 m or less over 10 m, or up to 10 m over 1 m, segments); `max_jump_m` the largest
+  one-frame position jump error.
+- **Filter artifacts**: what the tables and figures need from the VIO is computed by the first
+  report of a sweep and stored in `<sweep>/artifacts/` (CSV, JSON, npz; no pickle), keyed by
+  the problem config and the runs' best points; `--recompute` re-runs it.
 """
 
 
