@@ -281,3 +281,15 @@ def test_provenance_names_numba_and_the_cpu_model(tmp_path):
 
     assert record["versions"]["numba"] == numba.__version__
     assert record["machine"]["cpu_model"] and record["machine"]["cpu_model"] != "unknown"
+
+
+def test_progress_bar_shows_evaluations_best_f_and_is_redrawn_during_a_long_batch(tmp_path, capsys):
+    slow = AnalyticProblem("sphere", delay_s_per_batch=1.5)
+    problem = slow
+    run_job(problem, _make(problem), Budget(evals=64), tmp_path / "job", _identity(evals=64), label="job 2/7 demo",
+            progress_every_s=0.5)
+    err = capsys.readouterr().err
+    frames = [f for f in err.replace("\r", "\n").splitlines() if f.startswith("job 2/7 demo")]
+    assert any("64/64" in f and "best f" in f for f in frames)
+    # two batches of 1.5 s each, redrawn every 0.5 s: several frames, not only one per batch
+    assert len(frames) >= 5, frames
