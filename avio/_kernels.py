@@ -29,7 +29,7 @@ import numpy as np
 from avio._linalg import matmul, so3_exp, solve
 from avio.imu_propagation import propagate_one, propagate_workspace
 from avio.measurement import feature_residuals, rot_t
-from avio.outliers import feature_innovations, mahalanobis_gate, one_point_ransac
+from avio.outliers import _cholesky, feature_innovations, mahalanobis_gate, one_point_ransac
 
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3
 
@@ -60,10 +60,12 @@ def measure_workspace():
 
 
 @numba.njit(cache=True, error_model="numpy")
-def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, C, t12, t13, ws):
+def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws):
     """Innovations r (F, 4) pixels, their Jacobians J (F, 4, 12) w.r.t. the relative-pose errors
-    ``[psi12, dt12, psi13, dt13]`` and the map C (12, 27) from the error state to those (so
-    ``H = J C``, ``dr = -H dx``) of one filter, written into the arrays; also t12, t13 (3,).
+    ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (F, 4, 6) (the measurement
+    noise model, avio.measurement.feature_residuals) and the map C (12, 27) from the error
+    state to those (so ``H = J C``, ``dr = -H dx``) of one filter, written into the arrays;
+    also t12, t13 (3,).
 
     Chain: state error -> exposure-time IMU poses of images 1, 2, 3 (clones, shifted current
     pose) -> camera pose errors ``[dp_cam, phi]`` (``phi = R_cam_imu dtheta``,
@@ -110,7 +112,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     for i in range(3):
         t12[i], t13[i] = a12[i], a13[i]
     for f in range(uv.shape[0]):
-        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[f], J[f])
+        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[f], J[f], Gp[f])
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
         col = 6 * (jj + 1)
@@ -141,11 +143,12 @@ def measure_all(R, p, v, cp, cR, omega, td, fx, fy, cx, cy, Rci, pic, uv):
     (r (n, F, 4), J (n, F, 4, 12), C (n, 12, 27), t12 (n, 3), t13 (n, 3))."""
     n, F = R.shape[0], uv.shape[0]
     r, J, C = np.empty((n, F, 4)), np.empty((n, F, 4, 12)), np.empty((n, 12, 27))
+    Gp = np.empty((F, 4, 6))
     t12, t13 = np.empty((n, 3)), np.empty((n, 3))
     ws = measure_workspace()
     for i in range(n):
         measure(R[i], p[i], v[i], cp[0, i], cR[0, i], cp[1, i], cR[1, i], omega[i], td[i], fx[i], fy[i],
-                cx[i], cy[i], Rci[i], pic[i], uv, r[i], J[i], C[i], t12[i], t13[i], ws)
+                cx[i], cy[i], Rci[i], pic[i], uv, r[i], J[i], Gp, C[i], t12[i], t13[i], ws)
     return r, J, C, t12, t13
 
 
@@ -185,46 +188,127 @@ def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run)."""
     d = 12
     return (np.empty((F, 4)), np.empty((F, 4, d)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
-            np.empty(3), np.empty(3), np.empty((F, 4, d)), np.empty((F, 4)), np.empty(F, np.bool_),
+            np.empty(3), np.empty(3), np.empty((F, M, d)), np.empty((F, M)), np.empty(F, np.bool_),
             np.empty(F, np.bool_), np.empty(F, np.bool_), np.empty((d, d)), np.empty((d, d)), np.empty((d, d + 1)),
             np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)), np.empty(d))
 
 
 @numba.njit(cache=True, error_model="numpy")
-def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma,
-           min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws):
-    """One trifocal update of one filter (state and covariance Pi (27, 27) in place); returns
-    the numbers of features used and rejected.
+def noise_workspace(F):
+    """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
+    pixel sensitivities of the 4 residuals (F, 4, 6); the M used residuals, their Jacobians
+    and pixel sensitivities (F, M), (F, M, 12), (F, M, 6); covariances R_f and their Cholesky
+    factors (F, M, M), standard deviations (F, M), log det R_f and log det S_f (F,), and an (M,)
+    and a (12,) vector."""
+    return (np.empty((F, 4, 6)), np.empty((F, M)), np.empty((F, M, 12)), np.empty((F, M, 6)),
+            np.empty((F, M, M)), np.empty((F, M)), np.zeros((F, M, M)), np.empty(F), np.empty(F), np.empty(M),
+            np.empty(12))
 
-    Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite or without
-    baseline: not used), outlier rejection (``mode``: MODE_* of this module) on the linearised
-    measurement, then the Kalman update. The measurement depends on the state only through
-    the 12 relative-pose errors ``C dx``, so gates and update work with ``Sigma = C P C^T``
-    (12x12) and J: ``P+ = P - P C^T (I + A Sigma)^-1 A C P``,
-    ``dx = P C^T (I + A Sigma)^-1 J^T R^-1 r`` with ``A = J^T R^-1 J`` — the information form
-    ``(P^-1 + H^T R^-1 H)^-1`` with ``H = J C``, at the price of a 12x12 solve.
-    ws: :func:`update_workspace`, mws: :func:`measure_workspace`.
+
+LOG_2PI = np.log(2.0 * np.pi)
+#: The residuals the update uses, of the 4 of avio.measurement: the 1-2 Sampson distance and the
+#: two transfer coordinates. A point seen in three images gives 3 independent constraints (6
+#: measured coordinates minus its 3 coordinates): to first order the 2-3 Sampson distance is
+#: a combination of the other three, so the 4x4 covariance from the pixel noise is singular
+#: (smallest eigenvalue ~1e-4 sigma^2 against ~0.6 sigma^2 for these three on the default drive)
+#: and whitening all four would turn linearisation error into near-certain information.
+USED_RESIDUALS = (0, 2, 3)
+M = 3
+#: R_f gets (NOISE_FLOOR * sigma)^2 on its diagonal: keeps it positive definite when a
+#: geometry makes two residuals react to the pixels in the same way (it changes no decision).
+NOISE_FLOOR = 0.01
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR, f):
+    """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of feature f (G (F, M, 6) the used
+    residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
+    log det R_f, into the workspace arrays."""
+    s2 = sigma_px * sigma_px
+    for a in range(M):
+        for b in range(a + 1):
+            acc = 0.0
+            for c in range(6):
+                acc += Gp[f, a, c] * Gp[f, b, c]
+            Rm[f, a, b] = s2 * acc
+            Rm[f, b, a] = s2 * acc
+        Rm[f, a, a] += s2 * NOISE_FLOOR * NOISE_FLOOR
+        sd[f, a] = np.sqrt(Rm[f, a, a])
+    _cholesky(Rm[f], Lm[f])
+    ld = 0.0
+    for a in range(M):
+        ld += np.log(Lm[f, a, a])
+    ldR[f] = 2.0 * ld
+
+
+@numba.njit(cache=True, error_model="numpy")
+def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma_px,
+           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws):
+    """One trifocal update of one filter (state and covariance Pi (27, 27) in place).
+
+    Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
+    baseline or with a degenerate transfer: not used), each feature's measurement covariance
+    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.measurement.feature_residuals), outlier
+    rejection (``mode``: MODE_* of this module) on the linearised measurement, then the Kalman
+    update. A transfer is degenerate when it amplifies the pixel noise more than
+    ``max_transfer_gain`` times (the line through m2 nearly through the epipole: tiny changes of
+    m1, m2 move the transferred point by hundreds of pixels, whatever the residual).
+    The measurement depends on the state only through the 12 relative-pose errors ``C dx``, so
+    gates and update work with ``Sigma = C P C^T`` (12x12) and J: ``P+ = P - P C^T (I + A
+    Sigma)^-1 A C P``, ``dx = P C^T (I + A Sigma)^-1 J^T R^-1 r`` with ``A = J^T R^-1 J`` — the
+    information form ``(P^-1 + H^T R^-1 H)^-1`` with ``H = J C``, at the price of a 12x12 solve.
+    The same factors give the innovation likelihood of the update (avio/objectives.py):
+    ``NIS = r^T S^-1 r = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta`` (Woodbury, ``beta =
+    J^T R^-1 r``) and ``log det S = log det R + log det(I + A Sigma)``.
+    Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
+    rejected, the update's NIS, log det S and residual count, its NLL contribution with the
+    capped terms of the valid features it did not use, and the residual slots (4 per valid
+    feature). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
+    :func:`noise_workspace`.
     """
     F, d = uv.shape[0], 12
-    r, J, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3, jw = ws
-    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, C, t12, t13, mws)
+    r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3, jw = ws
+    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, beta = nws
+    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws)
     # Without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
     moving = b12 > min_parallax_m and b23 > min_parallax_m
     n_ok = 0
+    n_valid = 0
+    gain_limit2 = (max_transfer_gain * sigma_px) ** 2
+    log_s2 = np.log(sigma_px * sigma_px)
     for f in range(F):
+        n_valid += valid[f]
+        for a in range(M):
+            u = USED_RESIDUALS[a]
+            r[f, a] = r4[f, u]
+            for b in range(d):
+                J[f, a, b] = J4[f, u, b]
+            for b in range(6):
+                Gp[f, a, b] = G4[f, u, b]
         # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
         good = valid[f] and moving
-        for a in range(4):
+        for a in range(M):
             good = good and np.isfinite(r[f, a])
             for b in range(d):
                 good = good and np.isfinite(J[f, a, b])
+            for b in range(6):
+                good = good and np.isfinite(Gp[f, a, b])
+        if good:
+            _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR, f)
+            good = Rm[f, 1, 1] <= gain_limit2 and Rm[f, 2, 2] <= gain_limit2  # the transfer's rows
         ok[f] = good
         n_ok += good
         if not good:
-            r[f, :] = 0.0
-            J[f, :, :] = 0.0
+            ldR[f] = M * log_s2
+            for a in range(M):
+                r[f, a] = 0.0
+                sd[f, a] = sigma_px
+                for b in range(d):
+                    J[f, a, b] = 0.0
+                for b in range(M):
+                    Rm[f, a, b] = sigma_px * sigma_px if a == b else 0.0
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
     # symmetric), Sigma = C P C^T (symmetrised).
     matmul(C, Pi, CP)
@@ -237,34 +321,59 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
     inl[:] = ok
-    if mode != MODE_NONE:
-        feature_innovations(r, J, Sig, sigma, HP, z)
+    feature_innovations(r, J, Sig, Rm, HP, z, ldS)
+    # The score (avio/objectives.py): every valid feature's own innovation likelihood, its
+    # squared Mahalanobis distance capped at the gate, whatever the update does with it.
+    nll = 0.0
+    for f in range(F):
+        if valid[f]:
+            if ok[f]:
+                d2 = 0.0
+                for a in range(M):
+                    d2 += r[f, a] * z[f, a]
+                nll += 0.5 * (min(d2, chi2_threshold) + ldS[f] + M * LOG_2PI)
+            else:
+                nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
     if mode == MODE_RANSAC or mode == MODE_BOTH:
-        one_point_ransac(r, HP, z, sigma, ok, ransac_threshold_sigma, inl)
+        one_point_ransac(r, HP, z, sd, ok, ransac_threshold_sigma, inl)
     if mode == MODE_GATE or mode == MODE_BOTH:
         mahalanobis_gate(r, z, inl, chi2_threshold, gate)
         inl[:] = gate
     # Information form over the inliers: A = Jw^T Jw, beta = Jw^T rw with the whitened
-    # Jw = J / sigma, rw = r / sigma.
+    # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T).
     A[:] = 0.0
     X[:] = 0.0
     used = 0
+    rr = 0.0
+    log_det_R = 0.0
     for f in range(F):
         if not inl[f]:
             continue
         used += 1
-        for a in range(4):
-            wa = 1.0 / sigma[a]
-            rw = r[f, a] * wa
+        log_det_R += ldR[f]
+        L = Lm[f]
+        for a in range(M):  # forward substitution, one residual row at a time
+            acc = r[f, a]
+            for k in range(a):
+                acc -= L[a, k] * rw[k]
+            rw[a] = acc / L[a, a]
+            rr += rw[a] * rw[a]
+        for a in range(M):
             for b in range(d):
-                jw[b] = J[f, a, b] * wa
+                acc = J[f, a, b]
+                for k in range(a):
+                    acc -= L[a, k] * HP[f, k, b]  # HP rows of earlier residuals hold Jw already
+                jw[b] = acc / L[a, a]
+            for b in range(d):
+                HP[f, a, b] = jw[b]
             for b in range(d):
                 jb = jw[b]
                 if jb != 0.0:
-                    X[b, d] += jb * rw
+                    X[b, d] += jb * rw[a]
                     for c in range(b, d):
                         A[b, c] += jb * jw[c]
     for b in range(d):
+        beta[b] = X[b, d]
         for c in range(b):
             A[b, c] = A[c, b]
     # X = (I + A Sigma)^-1 [A | beta]
@@ -274,6 +383,16 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         for b in range(d):
             X[a, b] = A[a, b]
     solve(Mx, X)
+    log_det_S = log_det_R
+    for a in range(d):
+        log_det_S += np.log(abs(Mx[a, a]))  # the pivots of the elimination: det(I + A Sigma) > 0
+    nis = rr
+    for a in range(d):
+        acc = 0.0
+        for b in range(d):
+            acc += Sig[a, b] * X[b, d]
+        nis -= beta[a] * acc
+    dof = M * used
     for a in range(27):
         acc = 0.0
         for b in range(d):
@@ -295,7 +414,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         for c in range(a):
             Pi[c, a] = Pi[a, c]
     inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)
-    return used, n_ok - used
+    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -373,7 +492,9 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
 def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
     """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
-    (symmetrised), then the injection."""
+    (symmetrised), then the injection. A full update: the position error accumulated while
+    braking is corrected through the position-velocity correlation (a "consider" update of
+    the velocity and biases only was tried: 4.9 m instead of 1.4 m at the truth, seed 0)."""
     S, Z, dx = np.empty((3, 3)), np.empty((3, 28)), np.empty(27)
     for a in range(3):
         for b in range(3):
@@ -416,20 +537,24 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def run_filters(R0, p0, v0, P0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv, valid,
-                stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma, min_parallax_m, mode, ransac_threshold_sigma,
-                chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
-                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at):
+def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+                valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
+                mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
+                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
+                out_nll, out_slots):
     """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order: prediction
     (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
     :func:`update` or, standing still, :func:`zero_velocity_update`, :func:`slide`, the
     divergence test. A diverged filter (or one with ``frozen`` set: a non-finite calibration)
     keeps the estimates of its last good frame, reports the initial sigmas and no updates
-    from then on. Writes the out_* arrays (n, N, ...), n_upd, n_out (n, N) and div_at (n,).
+    from then on. Writes the out_* arrays (n, N, ...), n_upd, n_out (n, N), div_at (n,) and the
+    innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
+    contribution and residual slots (:func:`update`; zero where no trifocal update ran).
+    The biases start at ba0, bg0 (3,), the prior means.
     """
     n, N, F = fx.shape[0], T_s.shape[0], uv.shape[1]
-    ws, mws, pws = update_workspace(F), measure_workspace(), propagate_workspace()
+    ws, mws, pws, nws = update_workspace(F), measure_workspace(), propagate_workspace(), noise_workspace(F)
     R, p, v, ba, bg = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     cp, cR, P = np.empty((2, 3)), np.empty((2, 3, 3)), np.empty((27, 27))
     R_new, v_new, p_new, Phi = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((15, 15))
@@ -442,8 +567,8 @@ def run_filters(R0, p0, v0, P0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame,
         p[:] = p0
         v[:] = v0
         P[:] = P0
-        ba[:] = 0.0
-        bg[:] = 0.0
+        ba[:] = ba0
+        bg[:] = bg0
         cp[:] = 0.0
         cR[:] = 0.0
         for a in range(3):
@@ -451,6 +576,11 @@ def run_filters(R0, p0, v0, P0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame,
             cR[1, a, a] = 1.0
         n_upd[i, :] = 0
         n_out[i, :] = 0
+        out_nis[i, :] = 0.0
+        out_ldS[i, :] = 0.0
+        out_dof[i, :] = 0
+        out_nll[i, :] = 0.0
+        out_slots[i, :] = 0
         div_at[i] = 0 if frozen[i] else -1
         k_stop = 0 if frozen[i] else N
         omega = np.empty(3)
@@ -472,15 +602,22 @@ def run_filters(R0, p0, v0, P0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame,
                 zero_velocity_update(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
                                      zero_velocity_sigma_mps, E, T3)
             elif k >= 2 and j >= 0:
-                n_upd[i, k], n_out[i, k] = update(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega,
-                                                  td[i], fx[i], fy[i], cx[i], cy[i], Rci[i], pic[i], uv[j], valid[j],
-                                                  sigma, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold,
-                                                  ws, mws)
+                used, rej, nis, ldS, dof, nll, slots = update(
+                    R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega, td[i], fx[i], fy[i], cx[i],
+                    cy[i], Rci[i], pic[i], uv[j], valid[j], sigma_px, max_transfer_gain, min_parallax_m, mode,
+                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws)
+                n_upd[i, k], n_out[i, k] = used, rej
+                out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
             slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)
             if _bad(R_new, p_new, v_new, P, max_variance, max_speed):
                 div_at[i] = k
                 n_upd[i, k] = 0
                 n_out[i, k] = 0
+                out_nis[i, k] = 0.0
+                out_ldS[i, k] = 0.0
+                out_dof[i, k] = 0
+                out_nll[i, k] = 0.0
+                out_slots[i, k] = 0
                 ba[:] = ba_s
                 bg[:] = bg_s
                 k_stop = k

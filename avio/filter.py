@@ -15,8 +15,9 @@ gyro biases ``b_a`` (m/s^2), ``b_g`` (rad/s), and two clones of the camera-expos
 frames k-2 and k-1. Error state, 27: ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]``
 with local rotation errors (``R_true = R exp(dtheta)``).
 
-- Initial state: the ground-truth pose and velocity at frame 0, biases zero; the initial
-  covariance is diagonal with the ``init_sigma_*`` of :class:`FilterConfig`. The filter
+- Initial state: the ground-truth pose and velocity at frame 0, biases from the sequence
+  (``Sequence.initial_*_bias``, zero when unknown); the initial covariance is diagonal with the
+  ``init_sigma_*`` of :class:`FilterConfig`. The filter
   estimates from frame 0 on; frames before the first complete triplet are IMU propagation only.
 - Prediction: the IMU increments of every frame interval are integrated with RK4 (IMU linearly
   interpolated at sub-steps of ``rk4_max_step_s``) once per sequence, bias-free, together with
@@ -30,13 +31,29 @@ with local rotation errors (``R_true = R exp(dtheta)``).
   current pose in the measurement (with its Jacobian w.r.t. ``dv`` and ``db_g``).
 - Update per frame triplet: 4 pixel residuals per feature (avio/measurement.py) with analytic
   Jacobians; features chosen once per sequence by 4x8 bucketing of frame k's image
-  (calibration-independent); outliers rejected per filter (avio/outliers.py); then the Kalman
-  update in information form, reduced to the 12 relative-pose errors the measurement depends
-  on (avio._kernels.update): a 12x12 solve, never the (4F)x(4F) innovation covariance.
-- Standing still: when the median image motion of a triplet's features over two frames is
-  below ``stationary_flow_px`` (calibration-free), the trifocal geometry has no baseline and
-  says nothing; a zero-velocity pseudo-measurement (``zero_velocity_sigma_mps``) replaces the
-  update. (Not in the paper; its drives do not stop, the simulated city drive does.)
+  (calibration-independent). Each feature's measurement covariance is derived from the pixel
+  noise: ``R_f = pixel_sigma_px^2 G G^T`` with G the residuals' derivative with respect to the six
+  measured pixel coordinates (the two Sampson distances share m2 and are correlated; the
+  transfer amplifies the noise of m1 and m2 by the geometry), so the filter weights each residual
+  by its real uncertainty. That covariance has rank 3 (a point in three images gives three
+  constraints): the update uses the 1-2 Sampson distance and the transfer, whose 3x3
+  covariance is well conditioned, and not the 2-3 Sampson distance, which to first order is
+  their combination (avio._kernels.USED_RESIDUALS). Transfers that amplify the noise more than
+  ``max_transfer_gain`` times are degenerate and not used. Outliers rejected per filter (avio/outliers.py); then the
+  Kalman update in information form, reduced to the 12 relative-pose errors the measurement
+  depends on (avio._kernels.update): a 12x12 solve, never the (4F)x(4F) innovation covariance.
+  Each update also yields its innovation statistics (NIS, log det S, the NLL of
+  avio/objectives.py), at no extra cost in products.
+- Standing still (calibration-free, once per sequence): when both the IMU is still — the
+  variances of every gyro and accelerometer axis over the last ``stationary_imu_window_s``
+  below ``stationary_imu_variance_ratio`` times the white-noise variance the filter assumes —
+  and the median image motion of the triplet's features over two frames is below
+  ``stationary_flow_px`` and incoherent (the two frame steps of a feature do not point the
+  same way: pixel noise, not motion), a zero-velocity pseudo-measurement (``zero_velocity_sigma_mps``)
+  replaces the update. The image test alone fired at 0.3-1.2 m/s while braking and the
+  pseudo-measurement then moved the position by metres; braking shows in the accelerometer
+  (variance ratio 2-8 on the default drive) long after the image motion is below the noise.
+  (Not in the paper; its drives do not stop, the simulated city drive does.)
 - Slide: the oldest clone is dropped and the (time-shifted) current pose is cloned.
 - Divergence: a filter whose state or covariance is non-finite, whose largest covariance
   diagonal exceeds ``divergence_max_variance`` (default 1e6, i.e. a 1 km standard deviation) or
@@ -91,16 +108,25 @@ class FilterConfig:
         gave the same median RMSE with 12 and 16, worse with 10 and 24), chosen by bucketing
         frame k's image into ``bucket_grid`` (rows, cols) cells (avio.tracks.bucket_select,
         seeded with ``bucket_seed``; calibration-independent, so once per sequence).
-    epipolar_sigma_px / transfer_sigma_px: measurement noise of the Sampson distances and of
-        each transfer coordinate (the reference implementation uses 2 px^2 for the transfer).
-    mahalanobis_probability: chi-square gate (4 degrees of freedom) of one feature.
+    pixel_sigma_px: the pixel noise of the tracked points (standard deviation per coordinate);
+        the residuals' covariance follows from it (module docstring). 0.7 px is the simulated
+        cameras' noise; the first implementation's fixed diag(1, 1, 2, 2) px^2 gave NIS/dof 0.73
+        and a position NEES of 2-24 at the truth.
+    max_transfer_gain: a feature whose transferred point moves more than this many pixels per
+        pixel of measurement noise (standard deviations) is a degenerate transfer and is not used;
+        at the true poses inliers stay below ~10, degenerate ones reach thousands.
+    mahalanobis_probability: chi-square gate of one feature (3 degrees of freedom: the residuals
+        the update uses, avio._kernels.USED_RESIDUALS).
     ransac_threshold_sigma: a feature is a RANSAC inlier when each residual is within this many
         measurement standard deviations after the hypothesis' correction.
     min_parallax_m: no trifocal update when the predicted camera baseline 1-2 or 2-3 is shorter.
     min_feature_flow_px: features moving less than this between consecutive images are not
         used (0: all are used; dropping them did not help).
-    stationary_flow_px, zero_velocity_sigma_mps: standing-still detection and its pseudo-
-        measurement (module docstring); the threshold suits pixel noise up to ~0.7 px.
+    stationary_flow_px, stationary_max_coherence, stationary_imu_window_s,
+        stationary_imu_variance_ratio, zero_velocity_sigma_mps: standing-still detection and its
+        pseudo-measurement (module docstring); the flow threshold suits pixel noise up to
+        ~0.7 px; the coherence (median cosine between a feature's two frame steps: about -0.5
+        for pixel noise at a standstill, 1 when moving) catches slow motion below the noise.
     init_sigma_*: initial standard deviations (m, rad, m/s, m/s^2, rad/s); the clones start
         with the pose values. The bias ones matter: with 1e-3 rad/s on the gyro bias the
         trifocal updates "learn" a yaw-rate bias that is not there (yaw is unobservable) and
@@ -116,14 +142,17 @@ class FilterConfig:
     max_update_features: int = 16
     bucket_grid: tuple[int, int] = (4, 8)
     bucket_seed: int = 0
-    epipolar_sigma_px: float = 1.0
-    transfer_sigma_px: float = float(np.sqrt(2.0))
+    pixel_sigma_px: float = 0.7
+    max_transfer_gain: float = 50.0
     outlier_rejection: str = "both"
     mahalanobis_probability: float = 0.99
     ransac_threshold_sigma: float = 3.0
     min_parallax_m: float = 0.05
     min_feature_flow_px: float = 0.0
     stationary_flow_px: float = 1.5
+    stationary_max_coherence: float = 0.25
+    stationary_imu_window_s: float = 1.0
+    stationary_imu_variance_ratio: float = 1.5
     zero_velocity_sigma_mps: float = 0.1
     init_sigma_p_m: float = 0.01
     init_sigma_theta_rad: float = float(np.radians(0.1))
@@ -136,8 +165,8 @@ class FilterConfig:
 
     @property
     def chi2_threshold(self) -> float:
-        """Gate on the squared Mahalanobis distance of one feature's 4 residuals."""
-        return float(_chi2_ppf(self.mahalanobis_probability, 4))
+        """Gate on the squared Mahalanobis distance of one feature's used residuals (3 dof)."""
+        return float(_chi2_ppf(self.mahalanobis_probability, _kernels.M))
 
     def __post_init__(self) -> None:
         if self.outlier_rejection not in OUTLIER_MODES:
@@ -145,6 +174,12 @@ class FilterConfig:
                               f"got {self.outlier_rejection!r}")
         if self.max_update_features < 1 or self.rk4_max_step_s <= 0:
             raise FilterError("FilterConfig: max_update_features >= 1 and rk4_max_step_s > 0 required")
+        for name in ("pixel_sigma_px", "max_transfer_gain", "zero_velocity_sigma_mps", "stationary_imu_window_s",
+                     "stationary_imu_variance_ratio", "divergence_max_variance", "divergence_max_speed_mps",
+                     "imu_noise_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise FilterError(f"FilterConfig.{name} = {value!r}: must be a finite number > 0")
 
 
 @dataclass(frozen=True)
@@ -157,6 +192,10 @@ class FilterResult:
     sigma (n, N, 15): the filter's own standard deviations of ``[p, theta, v, b_a, b_g]``
         (square roots of the core covariance diagonal; m, rad, m/s, m/s^2, rad/s) at each frame.
     b_a_mps2, b_g_radps (n, N, 3): bias estimates.
+    nis, log_det_S (n, N): the normalised innovation squared and log det of the innovation
+        covariance of each frame's trifocal update; dof (n, N) its residual count; nll (n, N) its
+        contribution to the innovation NLL and nll_slots (n, N) the residual slots it covers
+        (avio/objectives.py); zero where no trifocal update ran.
     """
 
     p_world_imu_m: np.ndarray
@@ -169,6 +208,11 @@ class FilterResult:
     sigma: np.ndarray
     b_a_mps2: np.ndarray
     b_g_radps: np.ndarray
+    nis: np.ndarray | None = None
+    log_det_S: np.ndarray | None = None
+    dof: np.ndarray | None = None
+    nll: np.ndarray | None = None
+    nll_slots: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
 
 
@@ -181,7 +225,7 @@ class _Prepared:
     uv_px: np.ndarray  # (n_trip, F, 3, 2) selected features
     valid: np.ndarray  # (n_trip, F)
     Qd: np.ndarray  # (N, 15, 15)
-    stationary: np.ndarray  # (N,) bool, the images of frames k-2..k show no motion
+    stationary: np.ndarray  # (N,) bool, standing still at frame k (IMU and images)
 
 
 def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
@@ -203,10 +247,18 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     flow = np.linalg.norm(np.diff(tr.uv_px, axis=2), axis=-1)  # (n_trip, F, 2)
     moving = np.where(tr.valid, flow.min(axis=-1), np.nan)
     flow13 = np.linalg.norm(tr.uv_px[:, :, 2] - tr.uv_px[:, :, 0], axis=-1)
-    stationary = np.zeros(N, bool)
+    # Two frame steps of a feature: at a standstill they are pixel noise (anti-correlated
+    # through the shared middle image), while moving they point the same way, however small.
+    steps = np.diff(tr.uv_px, axis=2)  # (n_trip, F, 2, 2)
+    cosine = np.sum(steps[:, :, 0] * steps[:, :, 1], axis=-1) / np.maximum(
+        np.linalg.norm(steps[:, :, 0], axis=-1) * np.linalg.norm(steps[:, :, 1], axis=-1), 1e-12)
+    still_images = np.zeros(N, bool)
     has = tr.n_features >= 3
     median_flow = np.nanmedian(np.where(tr.valid[has], flow13[has], np.nan), axis=1)
-    stationary[tr.frame_index[has]] = median_flow < config.stationary_flow_px
+    median_cosine = np.nanmedian(np.where(tr.valid[has], cosine[has], np.nan), axis=1)
+    still_images[tr.frame_index[has]] = ((median_flow < config.stationary_flow_px)
+                                         & (median_cosine < config.stationary_max_coherence))
+    stationary = still_images & imu_still(imu, sequence.frame_t_s, sequence.imu_noise, config)
     trip, feat = np.nonzero(tr.valid & (moving >= config.min_feature_flow_px))
     uv3 = tr.uv_px[trip, feat, 2]
     chosen = bucket_select(trip, uv3, config.max_update_features, np.random.default_rng(config.bucket_seed),
@@ -231,6 +283,27 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     return _Prepared(pre, tof, uv, valid, Qd, stationary)
 
 
+def imu_still(imu, frame_t_s: np.ndarray, noise, config: FilterConfig) -> np.ndarray:
+    """(N,) bool: at each frame time the IMU over the last ``stationary_imu_window_s`` is still:
+    every gyro and accelerometer axis varies by less than ``stationary_imu_variance_ratio``
+    times the white-noise variance the filter assumes (``density^2 / dt``; at rest the ratio
+    is ~1, braking or turning raises it). Windows with fewer than 5 samples are not still."""
+    dt = float(np.median(np.diff(imu.t_s)))
+    s = config.imu_noise_scale
+    var0 = np.r_[[(s * noise.gyro_noise) ** 2 / dt] * 3, [(s * noise.accel_noise) ** 2 / dt] * 3]
+    x = np.concatenate([imu.gyro_imu_radps, imu.accel_imu_mps2], axis=1)
+    x = x - x.mean(axis=0)  # conditions the running sums
+    c1 = np.concatenate([np.zeros((1, 6)), np.cumsum(x, axis=0)])
+    c2 = np.concatenate([np.zeros((1, 6)), np.cumsum(x * x, axis=0)])
+    i1 = np.searchsorted(imu.t_s, frame_t_s, side="right")
+    i0 = np.searchsorted(imu.t_s, frame_t_s - config.stationary_imu_window_s, side="left")
+    count = (i1 - i0)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (c1[i1] - c1[i0]) / count
+        var = (c2[i1] - c2[i0]) / count - mean**2
+    return (count[:, 0] >= 5) & np.all(var < config.stationary_imu_variance_ratio * var0, axis=1)
+
+
 class _State:
     """Initial nominal states and covariances of n filters: truth pose and velocity of frame 0,
     biases zero, clones at the origin (they are set by the first slides), ``P0`` diagonal."""
@@ -240,8 +313,8 @@ class _State:
         self.R = np.repeat(tr.R_world_imu[:1], n, axis=0).astype(float)
         self.p = np.repeat(tr.p_world_imu_m[:1], n, axis=0).astype(float)
         self.v = np.repeat(tr.v_world_imu_mps[:1], n, axis=0).astype(float)
-        self.ba = np.zeros((n, 3))
-        self.bg = np.zeros((n, 3))
+        self.ba = np.repeat(_bias(sequence.initial_accel_bias_mps2)[None], n, axis=0)
+        self.bg = np.repeat(_bias(sequence.initial_gyro_bias_radps)[None], n, axis=0)
         self.cp = np.zeros((2, n, 3))  # clones (k-2, k-1): exposure-time IMU positions
         self.cR = np.repeat(np.eye(3)[None, None], 2, 0).repeat(n, 1)
         c = config
@@ -250,6 +323,10 @@ class _State:
                   [c.init_sigma_theta_rad] * 3, [c.init_sigma_p_m] * 3, [c.init_sigma_theta_rad] * 3]
         self.P0 = np.diag(d**2)
         self.P = np.repeat(self.P0[None], n, axis=0)
+
+def _bias(value) -> np.ndarray:
+    return np.zeros(3) if value is None else np.asarray(value, float).reshape(3)
+
 
 def measurement_model(st: "_State", cal: Calibration, uv_px, omega, td):
     """Innovations r (n, F, 4) pixels, their Jacobian J (n, F, 4, 12) w.r.t. the relative-pose
@@ -318,16 +395,19 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     frozen = ~np.all(np.isfinite(np.concatenate(
         [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
          cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
-    sigma = np.array([c.epipolar_sigma_px] * 2 + [c.transfer_sigma_px] * 2)
+    out_nis, out_ldS, out_nll = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
+    out_dof, out_slots = np.empty((n, N), np.int64), np.empty((n, N), np.int64)
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         _kernels.run_filters(
-            st.R[0], st.p[0], st.v[0], st.P0, _f64(sequence.gravity_world_mps2), pre.dR, pre.dv, pre.dp, pre.S, pre.SS,
+            st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
+            pre.dp, pre.S, pre.SS,
             pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
-            prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, sigma, c.min_parallax_m,
-            _MODES[c.outlier_rejection], c.ransac_threshold_sigma, c.chi2_threshold, c.zero_velocity_sigma_mps,
-            c.divergence_max_variance, c.divergence_max_speed_mps,
-            out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at)
+            prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, float(c.pixel_sigma_px),
+            float(c.max_transfer_gain), c.min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
+            c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
+            out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
+            out_slots)
     return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
-                        meta={"config": config})
+                        out_nis, out_ldS, out_dof, out_nll, out_slots, meta={"config": config})

@@ -74,8 +74,10 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
 
     R_ab (3, 3), t (3-tuple): pose of camera b in camera a; xa, xb normalised homogeneous
     points (3-tuples); fx, fy pixels. Returns ``r``, ``g_psi``, ``g_t`` (derivatives w.r.t.
-    ``R_ab <- R_ab exp(psi)``, ``t <- t + dt``) and ``w = R_ab^T (t x xa)``, the epipolar line
-    in normalised coordinates of b.
+    ``R_ab <- R_ab exp(psi)``, ``t <- t + dt``), ``w = R_ab^T (t x xa)``, the epipolar line
+    in normalised coordinates of b, and ``g_pix = dr / d(ua, va, ub, vb)`` (4-tuple, 1/px·px:
+    the unit-norm pixel gradient of the Sampson distance, whose denominator is exactly that
+    gradient's norm; first order, as the distance itself).
     """
     c = cross(t, xa)
     Rxb = rot(R_ab, xb)
@@ -98,7 +100,8 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
              (de_psi[2] - ri * (a1[2] + a2[2])) * i_s)
     g_t = ((de_t[0] - ri * (b1[0] + b2[0])) * i_s, (de_t[1] - ri * (b1[1] + b2[1])) * i_s,
            (de_t[2] - ri * (b1[2] + b2[2])) * i_s)
-    return r, g_psi, g_t, w
+    g_pix = (u[0] * ifx * i_s, u[1] * ify * i_s, w[0] * ifx * i_s, w[1] * ify * i_s)
+    return r, g_psi, g_t, w, g_pix
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -149,9 +152,50 @@ def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J):
-    """Innovations ``r = z - h`` (4,) pixels and Jacobian ``J = dh/d[psi12, dt12, psi13, dt13]``
-    (4, 12) of one feature (written into r, J), so that ``dr = -J d``, the Kalman convention.
+def _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy):
+    """(du, dv) pixels of the transfer for a perturbation dx1 of x1 and dl of the line l_n."""
+    dlam = rot(R12, dl)
+    ds1 = dot(dlam, t12)
+    ds2 = dot(dlam, x1) + dot(lam, dx1)
+    dX = rot_t(R13, (ds1 * x1[0] + s1 * dx1[0] - ds2 * t13[0], ds1 * x1[1] + s1 * dx1[1] - ds2 * t13[1],
+                     ds1 * x1[2] + s1 * dx1[2] - ds2 * t13[2]))
+    iX2 = 1.0 / X[2]
+    return (fx * (dX[0] * X[2] - X[0] * dX[2]) * iX2 * iX2, fy * (dX[1] * X[2] - X[1] * dX[2]) * iX2 * iX2)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
+    """d(transfer pixel (u, v)) / d(u1, v1, u2, v2) into G (2, 4): how the transferred point
+    moves with the measured points of images 1 and 2 (through x1, the epipolar line w12 of x1
+    and the perpendicular line through x2); the noise amplification of the transfer."""
+    a = fx / fy
+    ia = 1.0 / a
+    w0, w1 = w12[0], w12[1]
+    l_n = (a * w1, -w0 * ia, -a * x2[0] * w1 + x2[1] * w0 * ia)
+    lam = rot(R12, l_n)
+    s1, s2 = dot(lam, t12), dot(lam, x1)
+    X = rot_t(R13, _axpy(s1, x1, -s2, t13))
+    for c in range(2):
+        dx1 = (1.0 / fx if c == 0 else 0.0, 1.0 / fy if c == 1 else 0.0, 0.0)
+        dw = rot_t(R12, cross(t12, dx1))
+        dl = (a * dw[1], -dw[0] * ia, -a * x2[0] * dw[1] + x2[1] * dw[0] * ia)
+        du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy)
+        G[0, c], G[1, c] = du, dv
+    zero = (0.0, 0.0, 0.0)
+    for c in range(2):
+        dl = (0.0, 0.0, -a * w1 / fx if c == 0 else w0 * ia / fy)
+        du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, zero, dl, fx, fy)
+        G[0, 2 + c], G[1, 2 + c] = du, dv
+
+
+@numba.njit(cache=True, error_model="numpy")
+def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G):
+    """Innovations ``r = z - h`` (4,) pixels, Jacobian ``J = dh/d[psi12, dt12, psi13, dt13]``
+    (4, 12) of one feature (written into r, J), so that ``dr = -J d``, the Kalman convention,
+    and ``G = dr / d(u1, v1, u2, v2, u3, v3)`` (4, 6), the residuals' sensitivity to the pixel
+    measurements: with independent pixel noise of sigma px the residuals' covariance is
+    ``sigma^2 G G^T`` (the two Sampson distances share m2 and the transfer reads all three
+    images, so it is not diagonal).
 
     uv (3, 2) pixels in images 1, 2, 3; R12, R13, R23 (3, 3) and t12, t13, t23 (3-tuples) the
     relative poses (``R23 = R12^T R13``, ``t23 = R12^T (t13 - t12)``). The epipolar
@@ -163,9 +207,20 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J):
     x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)
     x2 = ((uv[1, 0] - cx) * ifx, (uv[1, 1] - cy) * ify, 1.0)
     x3 = ((uv[2, 0] - cx) * ifx, (uv[2, 1] - cy) * ify, 1.0)
-    h0, gp0, gt0, w12 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
-    h1, gp1, gt1, _ = epipolar_sampson(R23, t23, x2, x3, fx, fy)
+    h0, gp0, gt0, w12, gx0 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
+    h1, gp1, gt1, _, gx1 = epipolar_sampson(R23, t23, x2, x3, fx, fy)
     r[0], r[1] = -h0, -h1
+    for c in range(6):
+        for a in range(4):
+            G[a, c] = 0.0
+    for c in range(4):
+        G[0, c] = -gx0[c]
+        G[1, 2 + c] = -gx1[c]
+    transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G[2:4, 0:4])
+    for a in range(2):
+        for c in range(4):
+            G[2 + a, c] = -G[2 + a, c]
+        G[2 + a, 4 + a] = 1.0
     Rg = rot(R23, gp1)
     gx = cross(gt1, t23)
     R12g = rot(R12, gt1)
@@ -181,7 +236,7 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J):
+def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J, G):
     for i in range(R12.shape[0]):
         R23 = np.empty((3, 3))
         for a in range(3):
@@ -193,22 +248,24 @@ def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J):
         a13 = (t13[i, 0], t13[i, 1], t13[i, 2])
         for f in range(uv_px.shape[0]):
             feature_residuals(uv_px[f], R12[i], a12, R13[i], a13, R23, t23, fx[i], fy[i], cx[i], cy[i],
-                              r[i, f], J[i, f])
+                              r[i, f], J[i, f], G[i, f])
 
 
-def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy):
+def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, with_pixel_jacobian: bool = False):
     """Innovations (n, F, 4) pixels and Jacobians (n, F, 4, 12) of F features (uv_px (F, 3, 2),
     shared by the batch) for n filters' relative poses R12, R13 (n, 3, 3), t12, t13 (n, 3) and
-    intrinsics (n,); :func:`feature_residuals` per feature (what the filter's update runs)."""
+    intrinsics (n,); :func:`feature_residuals` per feature (what the filter's update runs).
+    ``with_pixel_jacobian`` also returns G (n, F, 4, 6), d residuals / d pixels."""
     if uv_px.ndim != 3 or uv_px.shape[1:] != (3, 2):
         raise MeasurementError(f"triplet_residuals: uv_px must be (F, 3, 2) pixels, got {uv_px.shape}")
     n, F = R12.shape[0], uv_px.shape[0]
     r = np.empty((n, F, 4))
     J = np.empty((n, F, 4, 12))
+    G = np.empty((n, F, 4, 6))
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
     _triplet_residuals(f64(uv_px), f64(R12), f64(t12), f64(R13), f64(t13), f64(fx), f64(fy), f64(cx), f64(cy),
-                       r, J)
-    return r, J
+                       r, J, G)
+    return (r, J, G) if with_pixel_jacobian else (r, J)
 
 
 def relative_poses(Rc, pc):

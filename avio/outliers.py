@@ -4,18 +4,19 @@ Both tests work on the whitened, linearised measurement of each feature (4 resid
 two Sampson distances and the 2-D transfer error, pixels) and decide per filter:
 
 - :func:`mahalanobis_gate`: chi-square gate of ``r_j^T S_j^-1 r_j`` with
-  ``S_j = H_j P H_j^T + R_j`` (4 degrees of freedom);
+  ``S_j = H_j P H_j^T + R_j`` (4 degrees of freedom; ``R_j`` the feature's own 4x4 measurement
+  covariance, avio.measurement.feature_residuals);
 - :func:`one_point_ransac`: the paper's 1-point RANSAC (Civera et al. 2010) with the filter's
   prediction: every feature in turn is a hypothesis (so no random draw, and a batch gives the
   same answer as single runs); the state is corrected with that feature alone (one Kalman
   step, linearised), the other features' residuals are predicted after the correction, and a
-  feature is an inlier when each of its residuals is within ``threshold_sigma`` standard
-  deviations of measurement noise. The hypothesis with most inliers wins (ties: the first).
+  feature is an inlier when each of its residuals is within ``threshold_sigma`` of its own
+  measurement standard deviations ``sd_j = sqrt(diag R_j)``. The hypothesis with most inliers wins (ties: the first).
 
 Compiled with numba (``cache=True``, no fastmath): the filter's update kernel
 (avio/_kernels.py) calls these once per filter and frame. Shapes (one filter): r (F, 4),
 H (F, 4, d), P (d, d) the covariance of the d parameters H differentiates against,
-sigma (4,), valid (F,) bool.
+Rm (F, 4, 4) the measurement covariances, valid (F,) bool.
 """
 
 from __future__ import annotations
@@ -45,11 +46,11 @@ def _cholesky(S, L):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def feature_innovations(r, H, P, sigma, B, z):
-    """Per-feature ``B_j = H_j L`` (F, 4, d) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``)
-    and ``z_j = S_j^-1 r_j`` (F, 4) with ``S_j = H_j P H_j^T + diag(sigma^2) = B_j B_j^T +
-    diag(sigma^2)``, written into B and z; shared by both tests. Through L the products cost
-    half of ``H_j P`` (L is triangular).
+def feature_innovations(r, H, P, Rm, B, z, logdet):
+    """Per-feature ``B_j = H_j L`` (F, 4, d) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``),
+    ``z_j = S_j^-1 r_j`` (F, 4) with ``S_j = H_j P H_j^T + R_j = B_j B_j^T + R_j`` and
+    ``logdet_j = log det S_j`` (F,), written into B, z and logdet; shared by both tests. Through
+    L the products cost half of ``H_j P`` (L is triangular).
     """
     F, m, d = H.shape
     Lp = np.empty((d, d))
@@ -71,9 +72,12 @@ def feature_innovations(r, H, P, sigma, B, z):
                 acc = 0.0
                 for c in range(d):
                     acc += B[f, a, c] * B[f, b, c]
-                S[a, b] = acc
-            S[a, a] += sigma[a] * sigma[a]
+                S[a, b] = acc + Rm[f, a, b]
         _cholesky(S, L)
+        ld = 0.0
+        for i in range(m):
+            ld += np.log(L[i, i])
+        logdet[f] = 2.0 * ld
         for i in range(m):
             s = r[f, i]
             for k in range(i):
@@ -98,9 +102,9 @@ def mahalanobis_gate(r, z, valid, chi2_threshold, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def one_point_ransac(r, B, z, sigma, valid, threshold_sigma, out):
+def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
-    B, z from :func:`feature_innovations`."""
+    B, z from :func:`feature_innovations`; sd (F, 4) the residuals' measurement standard deviations."""
     F, m, d = B.shape
     # Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h = L y_h with y_h = B_h^T z_h
     # (columns of Y, (d, F)); every feature's residual then moves by
@@ -127,7 +131,7 @@ def one_point_ransac(r, B, z, sigma, valid, threshold_sigma, out):
         for h in range(F):
             inlier[j, h] = valid[j]
         for a in range(m):
-            thr = threshold_sigma * sigma[a]
+            thr = threshold_sigma * sd[j, a]
             rja = r[j, a]
             row = moved[j * m + a]
             for h in range(F):

@@ -200,7 +200,8 @@ def _initial_bias(value, sigma: float, on: bool, rng: np.random.Generator) -> np
     return draw if on else np.zeros(3)
 
 
-def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = None) -> tuple[Sequence, SimWorld]:
+def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,
+                   true_calibration: Calibration | None = None) -> tuple[Sequence, SimWorld]:
     """``simulate`` plus the hidden truth (SimWorld) behind the sequence."""
     config.validate()
     streams = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS))))
@@ -219,7 +220,8 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
     )
     truth = trajectory.ground_truth(frame_t)
     reference = kitti_2011_10_03_calibration()
-    true_cal = truth_calibration(config, rngs["calibration"])
+    drawn = truth_calibration(config, rngs["calibration"])
+    true_cal = drawn if true_calibration is None else true_calibration
     landmarks = make_landmarks(truth, rngs["landmarks"], points_per_m=config.landmarks_per_m)
 
     cal_arrays = [getattr(c, k) for c in (reference, true_cal) for k in Calibration.__dataclass_fields__]
@@ -233,7 +235,8 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
         )
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
     config_dict = asdict(config)
-    extra = {"config": config_dict, "seed": seed}
+    seed_value = int(seed) if np.ndim(seed) == 0 else [int(v) for v in seed]
+    extra = {"config": config_dict, "seed": seed_value}
     if config.output == "images":
         from avio.render import RENDER_VERSION, render_frames  # OpenCV only when rendering
 
@@ -248,7 +251,7 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
             Path(image_dir) / f"sim_{data_hash[:16]}", rngs["render"],
         )
     sequence = Sequence(
-        name=f"sim_{config.trajectory}_{seed}",
+        name=f"sim_{config.trajectory}_{'_'.join(map(str, np.atleast_1d(seed_value)))}",
         imu=imu,
         frame_t_s=frame_t,
         truth=truth,
@@ -262,7 +265,8 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
         meta={
             "source": "avio.simulator",
             "config": config_dict,
-            "seed": int(seed),
+            "seed": seed_value,
+            "truth_calibration_given": true_calibration is not None,
             "content_hash": data_hash,
             "true_accel_bias0_mps2": b_a0.tolist(),
             "true_gyro_bias0_radps": b_g0.tolist(),
@@ -272,10 +276,16 @@ def simulate_world(config: SimConfig, seed: int, image_dir: str | Path | None = 
     return sequence, SimWorld(trajectory, landmarks, b_a, b_g)
 
 
-def simulate(config: SimConfig, seed: int, image_dir: str | Path | None = None) -> Sequence:
-    """A simulated drive: a pure function of (config, seed).
+def simulate(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,
+             true_calibration: Calibration | None = None) -> Sequence:
+    """A simulated drive: a pure function of (config, seed[, truth]).
 
+    seed: an int or a tuple of ints (numpy SeedSequence entropy; e.g. ``(data_seed, drive)``
+    for independent drives of one camera).
     image_dir: cache folder for rendered images (needed when ``config.output == "images"``;
     images go to ``image_dir/sim_<hash>/`` and are reused when already there).
+    true_calibration: the camera's true calibration (batch of 1); None draws it from the seed and
+    ``config.calibration_error``. Give the calibration drive's truth to simulate another drive
+    (independent world, noise and biases) of the same camera.
     """
-    return simulate_world(config, seed, image_dir)[0]
+    return simulate_world(config, seed, image_dir, true_calibration)[0]

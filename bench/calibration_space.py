@@ -32,17 +32,40 @@ class CalibrationSpace:
 
     kind: "paper" or "local"; nominal: the batch-of-1 calibration the local space is centred on
     (and whose values are the reference point of either space).
+    full: every variable of the kind; ``space`` holds the free ones the optimiser sees: the
+    ``fixed`` variables stay at the nominal's values, and with ``tie_focal`` fy is not a
+    variable but equals fx (square pixels).
     """
 
     kind: str
     space: Space
     nominal: Calibration
+    full: Space | None = None
+    fixed: tuple[str, ...] = ()
+    tie_focal: bool = False
+
+    @property
+    def full_space(self) -> Space:
+        return self.space if self.full is None else self.full
+
+    def expand(self, X: np.ndarray) -> np.ndarray:
+        """(n, d_free) points of ``space`` -> (n, d_full) points of ``full_space``."""
+        X = np.asarray(X, float)
+        full = self.full_space
+        if full is self.space:
+            return X
+        out = np.repeat(full.reference[None], len(X), axis=0)
+        for j, name in enumerate(self.space.names):
+            out[:, full.names.index(name)] = X[:, j]
+        if self.tie_focal:
+            out[:, full.names.index("fy")] = out[:, full.names.index("fx")]
+        return out
 
     def decode(self, X: np.ndarray) -> Calibration:
         """(n, d) points → a batch of n calibrations."""
-        X = np.asarray(X, float)
+        X = self.expand(X)
         n = len(X)
-        col = {name: X[:, i] for i, name in enumerate(self.space.names)}
+        col = {name: X[:, i] for i, name in enumerate(self.full_space.names)}
         if self.kind == "paper":
             R = euler_zyx_deg_to_matrix(col["roll"], col["pitch"], col["yaw"])
             p = np.stack([col["tx"], col["ty"], col["tz"]], axis=1)
@@ -53,8 +76,8 @@ class CalibrationSpace:
         td = col["td"] if "td" in col else np.full(n, float(self.nominal.time_offset_s[0]))
         return Calibration(col["fx"], col["fy"], col["cx"], col["cy"], R, p, td)
 
-    def encode(self, calibration: Calibration) -> np.ndarray:
-        """A batch of calibrations → (n, d) points (the inverse of ``decode``)."""
+    def encode_full(self, calibration: Calibration) -> np.ndarray:
+        """A batch of calibrations → (n, d_full) points of ``full_space``."""
         c = calibration
         if self.kind == "paper":
             parts = list(paper_parameters(c, self.nominal).T)
@@ -62,9 +85,16 @@ class CalibrationSpace:
             parts = [c.fx_px, c.fy_px, c.cx_px, c.cy_px]
             r = np.degrees(so3_log(c.R_cam_imu @ self.nominal.R_cam_imu[0].T))
             parts += list(r.T) + list((c.p_imu_cam_m - self.nominal.p_imu_cam_m[0]).T)
-        if "td" in self.space.names:
+        if "td" in self.full_space.names:
             parts.append(c.time_offset_s)
         return np.stack(parts, axis=1)
+
+    def encode(self, calibration: Calibration) -> np.ndarray:
+        """A batch of calibrations → (n, d) points of ``space`` (the inverse of ``decode`` on the
+        free variables; frozen and tied ones are dropped)."""
+        X = self.encode_full(calibration)
+        full = self.full_space
+        return X[:, [full.names.index(name) for name in self.space.names]]
 
 
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
@@ -94,6 +124,13 @@ def paper_parameters(calibration: Calibration, nominal: Calibration) -> np.ndarr
     return np.column_stack([c.fx_px, c.fy_px, c.cx_px, c.cy_px, angles, c.p_imu_cam_m])
 
 
+#: Half-widths of the local space's intrinsics around the nominal: focal lengths as a fraction
+#: of the nominal focal, the principal point as a fraction of the larger image side. For KITTI
+#: (718.9 px, 1241 px) that is +-21.6 px and +-24.8 px, about Table 1's ranges; for EuRoC
+#: (458 px, 752 px) +-13.8 px and +-15.0 px.
+LOCAL_FOCAL_FRACTION, LOCAL_PRINCIPAL_FRACTION = 0.03, 0.02
+
+
 def make_calibration_space(
     kind: str,
     nominal: Calibration,
@@ -102,26 +139,38 @@ def make_calibration_space(
     translation_bound_m: float = 0.25,
     time_offset_bound_s: float = 0.05,
     bounds: dict | None = None,
+    image_size_px: tuple[int, int] | None = None,
+    fixed: tuple[str, ...] | list[str] = (),
+    tie_focal: bool = False,
 ) -> CalibrationSpace:
     """Build the ``paper`` or ``local`` space around ``nominal`` (batch of 1).
 
-    ``bounds`` overrides any variable's ``[lower, upper]``; the paper space's defaults are its
-    Table 1, the local space's are Table 1 for the intrinsics and ``±rotation_bound_deg``,
-    ``±translation_bound_m`` for the extrinsic offsets.
+    ``bounds`` overrides any variable's ``[lower, upper]``. The paper space's defaults are its
+    Table 1 (the KITTI rig's numbers); the local space's come from the rig itself: the nominal
+    intrinsics ``+- LOCAL_FOCAL_FRACTION`` of the focal length and ``+- LOCAL_PRINCIPAL_FRACTION``
+    of the larger side of ``image_size_px`` (required), ``+-rotation_bound_deg`` and
+    ``+-translation_bound_m`` for the extrinsic offsets. ``fixed`` variables are frozen at the
+    nominal's values; ``tie_focal`` makes fy equal fx (fy is then not a variable).
+    SpaceError names the variable for anything invalid (unknown names, a focal bound <= 0, ...).
     """
     if kind not in SPACES:
         raise SpaceError(f"unknown space {kind!r}; valid: {', '.join(SPACES)}")
     if len(nominal) != 1:
         raise SpaceError(f"the nominal calibration must be a batch of 1, got {len(nominal)}")
-    table = {k: (v[1], v[2]) for k, v in PAPER_TABLE1.items()}
+    units = ["px"] * 4 + ["deg"] * 3 + ["m"] * 3
     if kind == "paper":
         names = list(PAPER_TABLE1)
-        units = ["px"] * 4 + ["deg"] * 3 + ["m"] * 3
-        limits = dict(table)
+        limits = {k: (v[1], v[2]) for k, v in PAPER_TABLE1.items()}
     else:
+        if image_size_px is None:
+            raise SpaceError("the local space needs the image size (its principal-point range)")
         names = list(_INTRINSICS) + ["rx", "ry", "rz", "dx", "dy", "dz"]
-        units = ["px"] * 4 + ["deg"] * 3 + ["m"] * 3
-        limits = {k: table[k] for k in _INTRINSICS}
+        f_half = LOCAL_FOCAL_FRACTION * float(max(nominal.fx_px[0], nominal.fy_px[0]))
+        c_half = LOCAL_PRINCIPAL_FRACTION * float(max(image_size_px))
+        limits = {"fx": (nominal.fx_px[0] - f_half, nominal.fx_px[0] + f_half),
+                  "fy": (nominal.fy_px[0] - f_half, nominal.fy_px[0] + f_half),
+                  "cx": (nominal.cx_px[0] - c_half, nominal.cx_px[0] + c_half),
+                  "cy": (nominal.cy_px[0] - c_half, nominal.cy_px[0] + c_half)}
         limits.update({k: (-rotation_bound_deg, rotation_bound_deg) for k in ("rx", "ry", "rz")})
         limits.update({k: (-translation_bound_m, translation_bound_m) for k in ("dx", "dy", "dz")})
     if with_time_offset:
@@ -131,10 +180,32 @@ def make_calibration_space(
     for name, pair in (bounds or {}).items():
         if name not in limits:
             raise SpaceError(f"bounds given for unknown variable {name!r}; variables: {', '.join(names)}")
-        limits[name] = (float(pair[0]), float(pair[1]))
+        try:
+            lo, hi = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise SpaceError(f"bounds.{name} must be [lower, upper] numbers, got {pair!r}") from None
+        limits[name] = (lo, hi)
+    for name in ("fx", "fy"):
+        if not limits[name][0] > 0:
+            raise SpaceError(f"bounds.{name}: the lower bound {limits[name][0]} admits a non-positive focal length")
+    fixed = tuple(fixed or ())
+    for name in fixed:
+        if name not in names:
+            raise SpaceError(f"fixed: unknown variable {name!r}; variables: {', '.join(names)}")
+    if tie_focal and ("fx" in fixed) != ("fy" in fixed):
+        raise SpaceError("tie_focal with only one of fx, fy fixed: fix both or neither")
     provisional = CalibrationSpace(kind, Space(tuple(names), tuple(units), np.zeros(len(names)),
                                               np.ones(len(names)), np.zeros(len(names))), nominal)
     reference = provisional.encode(nominal)[0]
     lower = np.array([limits[n][0] for n in names], float)
     upper = np.array([limits[n][1] for n in names], float)
-    return CalibrationSpace(kind, Space(tuple(names), tuple(units), lower, upper, reference), nominal)
+    full = Space(tuple(names), tuple(units), lower, upper, reference)
+    drop = set(fixed) | ({"fy"} if tie_focal else set())
+    if len(drop) >= len(names):
+        raise SpaceError("fixed: every variable is frozen; nothing left to calibrate")
+    if not drop:
+        return CalibrationSpace(kind, full, nominal)
+    keep = [i for i, n in enumerate(names) if n not in drop]
+    free = Space(tuple(names[i] for i in keep), tuple(units[i] for i in keep), lower[keep], upper[keep],
+                 reference[keep])
+    return CalibrationSpace(kind, free, nominal, full=full, fixed=fixed, tie_focal=bool(tie_focal))

@@ -1,27 +1,46 @@
-"""The paper's objective as registered problems: VIO position RMSE (Eq. 11–12) of a batch of
-candidate calibrations, on simulated drives, KITTI 00 (real IMU) and KITTI raw drives.
+"""The dataset-neutral VIO calibration objective: a batch of candidate calibrations, run through
+the filter over one or more calibration drives of one camera, scored by the chosen objective.
 
-Each problem has a calibration drive (the objective) and optionally a held-out drive (never
-seen by the optimiser; used by ``bench.tables`` for the paper's Tables 2–3). Beside f, every
-evaluation reports, uncharged, the calibration error against the truth when the truth is
-known: focal and principal-point errors (px, the larger of the two axes), the geodesic
-rotation error (deg), the translation error (cm) and, with a time offset, its error (ms).
+A data source is one small module beside this one (``synthetic.py``, ``kitti00.py``,
+``kitti_raw.py``, ``euroc.py``): a frozen parameters dataclass derived from :class:`VioParams`
+(its defaults are the yaml's defaults; it validates itself in one place), whose
+:meth:`VioParams.check_data` makes the cheap data checks the preflight runs before any work and
+whose :meth:`VioParams.build` returns the :class:`Drives`; and a two-line :class:`VioProblem`
+subclass registered under the yaml's name. See the README's "Adding a problem".
+
+Objectives (``objective=``), both batched and both pooled over the calibration drives:
+
+- ``position_rmse`` (default; the paper's Eq. 11-12, what Tables 1-3 use): the position RMSE
+  against the ground truth over all frames of all drives, metres.
+- ``innovation_nll``: the filter's own measurement likelihood, the negative log-likelihood of
+  its innovations per residual (avio.objectives.innovation_nll), dimensionless.
+
+A filter that diverges gets ``divergence_penalty_m * (2 - k_div / N)`` (in the objective's
+units): finite, worse than any regular value, worse the earlier it diverged.
+
+Beside f, every evaluation reports, uncharged: both objectives, the trajectory errors, the
+filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
+reference such as Kalibr) when the source knows one (avio.calibration_error).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import fields
+import types
+import typing
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
-from avio.filter import FilterConfig, FilterResult, prepare, run
-from avio.geometry import geodesic_angle_deg
-from avio.metrics import pose_errors, position_rmse_objective
-from avio.sequence import Calibration, ImuNoise, Sequence
+from avio.calibration_error import calibration_errors
+from avio.filter import FilterConfig, FilterError, FilterResult, prepare, run
+from avio.metrics import pose_errors
+from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse
+from avio.sequence import Calibration, Sequence
 from bench.calibration_space import make_calibration_space
-from bench.problems.base import ProblemError, register
+from bench.problems.base import ProblemError
+from bench.space import SpaceError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,7 +52,7 @@ def default_data_dir(data_dir: str | None = None) -> Path:
     return Path(os.environ.get("AVIO_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 
-def _tuples(d: dict) -> dict:
+def _tuples(d: dict | None) -> dict:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in (d or {}).items()}
 
 
@@ -43,222 +62,268 @@ def filter_config(params: dict | None) -> FilterConfig:
     unknown = set(params or {}) - valid
     if unknown:
         raise ProblemError(f"filter: unknown setting(s) {sorted(unknown)}; valid: {', '.join(sorted(valid))}")
-    return FilterConfig(**_tuples(params))
+    try:
+        return FilterConfig(**_tuples(params))
+    except (FilterError, TypeError, ValueError) as err:
+        raise ProblemError(f"filter: {err}") from None
 
 
-def calibration_errors(cal: Calibration, truth: Calibration) -> dict[str, np.ndarray]:
-    """(n,) errors of a batch of calibrations against a truth (batch of 1)."""
-    errors = {
-        "focal_error_px": np.maximum(abs(cal.fx_px - truth.fx_px[0]), abs(cal.fy_px - truth.fy_px[0])),
-        "principal_point_error_px": np.maximum(abs(cal.cx_px - truth.cx_px[0]), abs(cal.cy_px - truth.cy_px[0])),
-        "rotation_error_deg": geodesic_angle_deg(truth.R_cam_imu[0][None], cal.R_cam_imu),
-        "translation_error_cm": 100.0 * np.linalg.norm(cal.p_imu_cam_m - truth.p_imu_cam_m[0], axis=1),
-    }
-    errors["time_offset_error_ms"] = 1e3 * abs(cal.time_offset_s - truth.time_offset_s[0])
-    return errors
+@dataclass(frozen=True)
+class Drives:
+    """What a data source builds: the calibration drives (one camera, one or more drives or noise
+    realisations) and the held-out drive (same camera, independent data; never seen by the
+    optimiser), each a Sequence with tracks."""
+
+    calibration: tuple[Sequence, ...]
+    holdout: Sequence | None = None
 
 
-class VioRmseProblem:
-    """Position RMSE of the VIO over ``sequence`` for a batch of calibrations.
+def _plain(value):
+    """A config value as plain data (tuples for lists, dicts kept) for the dataclass fields."""
+    if isinstance(value, list):
+        return tuple(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
 
-    space: "paper" (Table 1, ZYX Euler) or "local" (rotation vector and offsets around the
-    reference); with_time_offset adds the camera–IMU time offset ``td`` (s).
+
+def _type_ok(value, hint) -> bool:
+    """Whether a config value fits a field's type hint (the simple hints these dataclasses use)."""
+    origin = typing.get_origin(hint)
+    if hint is typing.Any:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_type_ok(value, h) for h in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if origin is tuple or hint is tuple:
+        if not isinstance(value, tuple):
+            return False
+        args = typing.get_args(hint)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return all(_type_ok(v, args[0]) for v in value)
+        return not args or (len(args) == len(value) and all(_type_ok(v, a) for v, a in zip(value, args)))
+    if origin is dict or hint is dict:
+        return isinstance(value, dict)
+    return True
+
+
+@dataclass(frozen=True)
+class VioParams:
+    """The settings every VIO problem shares (the same keys in every VIO problem's yaml).
+
+    space: "paper" (Table 1 bounds, ZYX Euler deg) or "local" (rotation vector and offsets
+        around the source's nominal calibration, intrinsics range from that nominal).
+    with_time_offset: add the camera-IMU time offset td (s) as a variable.
+    bounds: {variable: [lower, upper]} overrides.
+    filter: FilterConfig overrides (avio/filter.py), e.g. {pixel_sigma_px: 0.5}.
+    divergence_penalty_m: objective of a diverged filter, ``penalty * (2 - k_div / N)``, in the
+        objective's units (> 0).
+    objective: one of avio.objectives.OBJECTIVES.
+    fixed: variables frozen at the nominal (reported as frozen, not calibrated).
+    tie_focal: fy = fx (square pixels; fy is then not a variable).
     """
 
-    def __init__(self, name: str, sequence: Sequence, holdout: Sequence | None = None, space: str = "paper",
-                 with_time_offset: bool = False, bounds: dict | None = None, filter: dict | None = None,
-                 divergence_penalty_m: float = 1000.0) -> None:
-        self.name = name
-        self.sequence, self.holdout = sequence, holdout
-        self.calibration_space = make_calibration_space(space, sequence.reference_calibration,
-                                                        with_time_offset=with_time_offset, bounds=bounds)
+    space: str = "local"
+    with_time_offset: bool = False
+    bounds: dict | None = None
+    filter: dict | None = None
+    divergence_penalty_m: float = 1000.0
+    objective: str = "position_rmse"
+    fixed: tuple[str, ...] = ()
+    tie_focal: bool = False
+
+    @classmethod
+    def from_config(cls, params: dict | None) -> "VioParams":
+        """The parameters from a config dict: unknown keys and wrongly typed values are a
+        ProblemError naming the key and what it must be; then :meth:`validate`."""
+        params = dict(params or {})
+        hints = typing.get_type_hints(cls)
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(params) - set(names))
+        if unknown:
+            raise ProblemError(f"unknown setting(s) {unknown}; valid: {', '.join(names)}")
+        values = {}
+        for key, value in params.items():
+            value = _plain(value)
+            if isinstance(value, int) and not isinstance(value, bool) and hints[key] is float:
+                value = float(value)
+            if not _type_ok(value, hints[key]):
+                raise ProblemError(f"{key} = {value!r}: must be {_hint_text(hints[key])}")
+            values[key] = value
+        obj = cls(**values)
+        obj.validate()
+        return obj
+
+    def validate(self) -> None:
+        """Raise ProblemError naming the first invalid setting (cheap: no data is read)."""
+        if not (np.isfinite(self.divergence_penalty_m) and self.divergence_penalty_m > 0):
+            raise ProblemError(f"divergence_penalty_m = {self.divergence_penalty_m}: must be a finite number > 0 "
+                               "(a non-positive penalty would rank diverged filters best)")
+        if self.objective not in OBJECTIVES:
+            raise ProblemError(f"objective = {self.objective!r}: valid: {', '.join(OBJECTIVES)}")
+        filter_config(self.filter)
+        self.space_for(self.nominal_for_checks(), self.image_size_for_checks())
+
+    # --- what a source provides ----------------------------------------------------------
+
+    def nominal_for_checks(self) -> Calibration:
+        """The nominal calibration the space is built around, known without reading data (for
+        the preflight's space check); sources override."""
+        from avio.reference import kitti_2011_10_03_calibration
+
+        return kitti_2011_10_03_calibration()
+
+    def image_size_for_checks(self) -> tuple[int, int]:
+        from avio.reference import IMAGE_SIZE_PX
+
+        return IMAGE_SIZE_PX
+
+    def check_data(self) -> None:
+        """Cheap checks of the data the problem will read (files, windows); ProblemError."""
+
+    def build(self) -> Drives:
+        raise ProblemError(f"{type(self).__name__} does not build drives")  # every source overrides
+
+    # --- shared helpers ----------------------------------------------------------------------
+
+    def space_for(self, nominal: Calibration, image_size_px: tuple[int, int]):
+        try:
+            return make_calibration_space(self.space, nominal, with_time_offset=self.with_time_offset,
+                                          bounds=self.bounds, image_size_px=image_size_px, fixed=self.fixed,
+                                          tie_focal=self.tie_focal)
+        except SpaceError as err:
+            raise ProblemError(str(err)) from None
+
+    def as_config(self) -> dict:
+        return asdict(self)
+
+
+def _hint_text(hint) -> str:
+    text = str(hint).replace("typing.", "")
+    return {"<class 'float'>": "a number", "<class 'int'>": "an integer", "<class 'bool'>": "true or false",
+            "<class 'str'>": "a string"}.get(text, text)
+
+
+class VioProblem:
+    """The VIO calibration objective over a source's drives (module docstring).
+
+    ``Params``: the source's VioParams subclass; ``name``: the registered name. Build with the
+    yaml's params (``Cls(**params)``); ``Cls.preflight(**params)`` validates them and checks the
+    data cheaply without building anything.
+    """
+
+    Params: type[VioParams] = VioParams
+    name = "vio"
+
+    def __init__(self, **params) -> None:
+        self.params = self.Params.from_config(params)
+        self.params.check_data()
+        drives = self.params.build()
+        self._setup(drives)
+
+    @classmethod
+    def preflight(cls, **params) -> None:
+        cls.Params.from_config(params).check_data()
+
+    def _setup(self, drives: Drives) -> None:
+        p = self.params
+        if not drives.calibration:
+            raise ProblemError(f"{self.name}: no calibration drive")
+        first = drives.calibration[0]
+        for seq in drives.calibration[1:] + ((drives.holdout,) if drives.holdout is not None else ()):
+            same_truth = (seq.truth_calibration is None) == (first.truth_calibration is None) and (
+                first.truth_calibration is None or _same_calibration(seq.truth_calibration, first.truth_calibration))
+            if not (same_truth and _same_calibration(seq.reference_calibration, first.reference_calibration)):
+                raise ProblemError(f"{self.name}: drive {seq.name!r} has another camera than {first.name!r}")
+        self.drives = tuple(drives.calibration)
+        self.sequence, self.holdout = first, drives.holdout
+        self.calibration_space = p.space_for(first.reference_calibration, first.image_size_px)
         self.space = self.calibration_space.space
-        self.filter_config = filter_config(filter)
-        self.divergence_penalty_m = float(divergence_penalty_m)
-        self._prepared = {id(sequence): prepare(sequence, self.filter_config)}
-        truth = sequence.truth_calibration
+        self.filter_config = filter_config(p.filter)
+        self.divergence_penalty_m = float(p.divergence_penalty_m)
+        self.objective = p.objective
+        self._prepared = {id(s): prepare(s, self.filter_config) for s in self.drives}
+        truth = first.truth_calibration
         self.truth = None if truth is None else self.calibration_space.encode(truth)[0]
         # the exact calibrations: a round trip through Euler angles near gimbal lock moves R by ~1e-7
-        anchors = Calibration.stack([sequence.reference_calibration] + ([] if truth is None else [truth]))
-        f_anchor, _ = self._score(anchors, sequence)
+        anchors = Calibration.stack([first.reference_calibration] + ([] if truth is None else [truth]))
+        f_anchor, _ = self.score(anchors)
         self.f_reference = float(f_anchor[0])
         self.f_truth = None if self.truth is None else float(f_anchor[1])
+
+    @property
+    def reference_calibration(self) -> Calibration:
+        return self.sequence.reference_calibration
 
     @property
     def identity(self) -> dict:
         return {"sequence": self.sequence.name, "n_frames": self.sequence.n_frames,
                 "sequence_meta": {k: v for k, v in self.sequence.meta.items() if np.ndim(v) == 0},
-                "holdout": None if self.holdout is None else self.holdout.name}
+                "drives": [{"name": s.name, "n_frames": s.n_frames, "content_hash": s.meta.get("content_hash")}
+                           for s in self.drives],
+                "holdout": None if self.holdout is None else self.holdout.name,
+                "holdout_content_hash": None if self.holdout is None else self.holdout.meta.get("content_hash"),
+                "objective": self.objective}
 
     def run_filter(self, calibrations: Calibration, sequence: Sequence | None = None) -> FilterResult:
-        """All filters of the batch over ``sequence`` (default: the calibration drive)."""
+        """All filters of the batch over ``sequence`` (default: the first calibration drive)."""
         sequence = sequence or self.sequence
         if id(sequence) not in self._prepared:
             self._prepared[id(sequence)] = prepare(sequence, self.filter_config)
         return run(sequence, calibrations, self.filter_config, prepared=self._prepared[id(sequence)])
 
-    def _score(self, cal: Calibration, sequence: Sequence) -> tuple[np.ndarray, FilterResult]:
-        result = self.run_filter(cal, sequence)
-        return position_rmse_objective(result, sequence.truth, self.divergence_penalty_m), result
+    def score(self, cal: Calibration, drives: tuple[Sequence, ...] | None = None
+              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """f (n,) of the calibrations over ``drives`` (default: the calibration drives; one batch
+        per drive) and the uncharged metrics (n,) beside it."""
+        drives = self.drives if drives is None else drives
+        results = [self.run_filter(cal, s) for s in drives]
+        truths = [s.truth for s in drives]
+        penalty = self.divergence_penalty_m
+        rmse = pooled_position_rmse(results, truths, penalty)
+        nll, nis_per_dof = innovation_nll(results, penalty)
+        f = rmse if self.objective == "position_rmse" else nll
+        errors = [pose_errors(r, s.truth) for r, s in zip(results, drives)]
+        frames = np.array([s.n_frames for s in drives], float)
+
+        def pooled(key: str) -> np.ndarray:  # RMS over every frame of every drive
+            return np.sqrt(sum(w * e[key] ** 2 for w, e in zip(frames, errors)) / frames.sum())
+
+        metrics = {"diverged": np.any([r.diverged for r in results], axis=0).astype(float),
+                   "position_rmse_m": rmse, "innovation_nll": nll, "nis_per_dof": nis_per_dof,
+                   "velocity_rmse_mps": pooled("velocity_rmse"), "attitude_rmse_deg": pooled("attitude_rmse")}
+        return f, metrics
 
     def evaluate(self, X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """f (n,) = position RMSE (m, Eq. 11–12; diverged filters get the documented penalty),
-        and metrics (n,): trajectory errors, divergence flags, calibration errors when known."""
+        """f (n,) (the chosen objective over the calibration drives) and metrics (n,): both
+        objectives, trajectory errors, NIS/dof, divergence flags, calibration errors when known."""
         X = self.space.check(X)
         cal = self.calibration_space.decode(X)
-        f, result = self._score(cal, self.sequence)
-        errors = pose_errors(result, self.sequence.truth)
-        metrics = {"diverged": result.diverged.astype(float),
-                   "velocity_rmse_mps": errors["velocity_rmse"],
-                   "attitude_rmse_deg": errors["attitude_rmse"]}
-        if self.sequence.truth_calibration is not None:
-            errs = calibration_errors(cal, self.sequence.truth_calibration)
+        f, metrics = self.score(cal)
+        truth = self.sequence.truth_calibration
+        if truth is not None:
+            errs = calibration_errors(cal, truth)
             if "td" not in self.space.names:
                 errs.pop("time_offset_error_ms")
             metrics.update(errs)
         return f, metrics
 
 
-# --- the registered problems -------------------------------------------------------------
+def _same_calibration(a: Calibration, b: Calibration) -> bool:
+    return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in Calibration.__dataclass_fields__)
 
 
-def _synthetic_sequence(drive: str, data_seed: int, sim: dict) -> Sequence:
-    from avio.simulator import SimConfig, simulate
+#: the name the first implementation used; kept for callers outside bench/problems.
+VioRmseProblem = VioProblem
 
-    presets = {"paper_540m": SimConfig.paper_540m, "paper_928m": SimConfig.paper_928m}
-    if drive not in presets:
-        raise ProblemError(f"synthetic: unknown drive {drive!r}; valid: {', '.join(presets)}")
-    sim = _tuples(sim)
-    if "imu_noise" in sim:
-        sim["imu_noise"] = ImuNoise(**sim["imu_noise"])
-    config = presets[drive](**sim)
-    config.validate()
-    return simulate(config, data_seed)
-
-
-@register("synthetic")
-class Synthetic(VioRmseProblem):
-    """A simulated KITTI-like drive with known truth (default: the paper's ~540 m city drive),
-    held-out drive the ~928 m one; ``data_seed`` fixes the world, the noise and the truth."""
-
-    def __init__(self, drive: str = "paper_540m", holdout: str | None = "paper_928m", data_seed: int = 0,
-                 sim: dict | None = None, **problem) -> None:
-        sim = sim or {}
-        sequence = _synthetic_sequence(drive, data_seed, sim)
-        held = None if not holdout else _synthetic_sequence(holdout, data_seed + 1, sim)
-        super().__init__("synthetic", sequence, held, **problem)
-
-    @staticmethod
-    def preflight(drive: str = "paper_540m", holdout: str | None = "paper_928m", data_seed: int = 0,
-                  sim: dict | None = None, space: str = "paper", with_time_offset: bool = False,
-                  bounds: dict | None = None, filter: dict | None = None, **_) -> None:
-        from avio.reference import kitti_2011_10_03_calibration
-        from avio.simulator import SimConfig
-
-        for name in (drive, holdout):
-            if name and name not in ("paper_540m", "paper_928m"):
-                raise ProblemError(f"unknown drive {name!r}; valid: paper_540m, paper_928m")
-        try:
-            SimConfig.paper_540m(**_tuples(sim)).validate()
-        except TypeError as err:
-            raise ProblemError(f"sim: {err}") from None
-        filter_config(filter)
-        make_calibration_space(space, kitti_2011_10_03_calibration(), with_time_offset, bounds=bounds)
-
-
-def _kitti00_sequence(data_dir: Path, window, camera: str, data_seed: int, camera_params: dict) -> Sequence:
-    from avio.kitti00 import WINDOWS, CalibrationPerturbation, load_kitti00
-
-    if isinstance(window, str):
-        if window not in WINDOWS:
-            raise ProblemError(f"kitti00: unknown window {window!r}; valid: {', '.join(WINDOWS)} or [first, last]")
-        first, last = WINDOWS[window]
-    else:
-        first, last = (int(v) for v in window)
-    params = dict(camera_params)
-    if "truth_perturbation" in params:
-        params["truth_perturbation"] = CalibrationPerturbation(**_tuples(params["truth_perturbation"]))
-    return load_kitti00(data_dir / "kitti00", first, last, camera=camera, seed=data_seed, **params)
-
-
-def _check_kitti00_files(data_dir: Path) -> None:
-    from avio.kitti00 import read_kitti00
-
-    read_kitti00(data_dir / "kitti00")  # parses and validates every file (cached per process)
-
-
-@register("kitti00")
-class Kitti00(VioRmseProblem):
-    """KITTI sequence 00 with its real 100 Hz IMU and ground truth, and a camera simulated through
-    the ground-truth poses with a known truth calibration. The ground truth is in the rectified
-    cam0 frame, so the reference is the rectified calibration; 0.65 deg of rectification moves its
-    ZYX roll from 119.5 to 173 deg (gimbal lock), outside Table 1, hence the default local space. ``window``: a named window
-    ("paper_540m" = frames 15–796, "paper_928m" = 2404–3553) or [first, last]."""
-
-    def __init__(self, data_dir: str | None = None, window="paper_540m", holdout="paper_928m",
-                 data_seed: int = 0, camera: dict | None = None, **problem) -> None:
-        root = default_data_dir(data_dir)
-        sequence = _kitti00_sequence(root, window, "simulated", data_seed, camera or {})
-        held = None if not holdout else _kitti00_sequence(root, holdout, "simulated", data_seed + 1, camera or {})
-        super().__init__("kitti00", sequence, held, **{"space": "local", **problem})
-
-    @staticmethod
-    def preflight(data_dir: str | None = None, space: str = "local", with_time_offset: bool = False,
-                  bounds: dict | None = None, filter: dict | None = None, **_) -> None:
-        from avio.reference import kitti_2011_10_03_calibration
-
-        _check_kitti00_files(default_data_dir(data_dir))
-        filter_config(filter)
-        make_calibration_space(space, kitti_2011_10_03_calibration(rectified=True), with_time_offset,
-                               bounds=bounds)
-
-
-@register("kitti00_tracks")
-class Kitti00Tracks(VioRmseProblem):
-    """All real data: KITTI 00 frames 15–153 with the real IMU, ground truth and the real feature
-    tracks of ``VO_stereo_factors00.txt``. The truth calibration is unknown; the reference is
-    the rectified KITTI calibration."""
-
-    def __init__(self, data_dir: str | None = None, window=(15, 153), data_seed: int = 0,
-                 camera: dict | None = None, **problem) -> None:
-        sequence = _kitti00_sequence(default_data_dir(data_dir), list(window), "real_tracks", data_seed,
-                                     camera or {})
-        super().__init__("kitti00_tracks", sequence, None, **{"space": "local", **problem})
-
-    preflight = Kitti00.preflight
-
-
-@register("kitti_raw")
-class KittiRaw(VioRmseProblem):
-    """A synced KITTI raw drive (``path=.../2011_10_03_drive_0027_sync``): OXTS truth and IMU,
-    the calib files' reference calibration, grayscale image_00 tracked once by the KLT front end
-    and cached under ``cache_dir``. The truth calibration is unknown."""
-
-    def __init__(self, path: str, calib_dir: str | None = None, frontend: dict | None = None,
-                 cache_dir: str = ".cache/frontend", **problem) -> None:
-        from avio.cache import sequence_with_tracks
-        from avio.frontend import FrontendConfig
-        from avio.kitti_raw import load_kitti_raw
-
-        sequence = load_kitti_raw(path, calib_dir)
-        sequence = sequence_with_tracks(sequence, FrontendConfig(**_tuples(frontend)), cache_dir)
-        super().__init__("kitti_raw", sequence, None, **{"space": "local", **problem})
-
-    @staticmethod
-    def preflight(path: str | None = None, calib_dir: str | None = None, space: str = "local",
-                  with_time_offset: bool = False, bounds: dict | None = None, filter: dict | None = None,
-                  **_) -> None:
-        from avio.kitti_raw import reference_calibration
-
-        if not path:
-            raise ProblemError("kitti_raw needs problem.params.path=.../<date>_drive_<nnnn>_sync")
-        drive = Path(path)
-        if not (drive / "oxts" / "data").is_dir():
-            raise ProblemError(f"{drive}: not a KITTI raw drive folder (no oxts/data)")
-        reference, _ = reference_calibration(Path(calib_dir) if calib_dir else drive.parent)
-        filter_config(filter)
-        make_calibration_space(space, reference, with_time_offset, bounds=bounds)
-
-
-__all__ = ["Kitti00", "Kitti00Tracks", "KittiRaw", "Synthetic", "VioRmseProblem", "calibration_errors",
-           "default_data_dir", "filter_config"]
+__all__ = ["Drives", "VioParams", "VioProblem", "VioRmseProblem", "calibration_errors", "default_data_dir",
+           "filter_config"]

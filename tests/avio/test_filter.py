@@ -279,28 +279,30 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     from avio.outliers import feature_innovations, mahalanobis_gate, one_point_ransac
 
     rng = np.random.default_rng(4)
-    F, d = 10, 12
-    H = rng.normal(size=(F, 4, d))
+    F, d, m = 10, 12, 3
+    H = rng.normal(size=(F, m, d))
     Sig = _spd(rng, d) * 1e-3
-    sigma = np.array([1.0, 1.0, 1.5, 1.5])
-    r = 0.5 * rng.normal(size=(F, 4))
+    Rm = np.stack([_spd(rng, m) for _ in range(F)])  # each feature its own measurement covariance
+    sd = np.sqrt(np.einsum("faa->fa", Rm))
+    r = 0.5 * rng.normal(size=(F, m))
     r[3] += 40.0  # an outlier
     valid = np.ones(F, bool)
     valid[7] = False
-    B, z = np.empty((F, 4, d)), np.empty((F, 4))
-    feature_innovations(r, H, Sig, sigma, B, z)
-    S = H @ Sig @ np.swapaxes(H, 1, 2) + np.diag(sigma**2)
+    B, z, logdet = np.empty((F, m, d)), np.empty((F, m)), np.empty(F)
+    feature_innovations(r, H, Sig, Rm, B, z, logdet)
+    S = H @ Sig @ np.swapaxes(H, 1, 2) + Rm
     assert np.abs(z - np.linalg.solve(S, r[..., None])[..., 0]).max() < 1e-9
+    assert np.abs(logdet - np.linalg.slogdet(S)[1]).max() < 1e-9
     gate = np.empty(F, bool)
-    mahalanobis_gate(r, z, valid, 13.28, gate)
+    mahalanobis_gate(r, z, valid, 11.34, gate)
     d2 = np.einsum("fa,fa->f", r, np.linalg.solve(S, r[..., None])[..., 0])
-    assert np.array_equal(gate, valid & (d2 <= 13.28)) and not gate[3]
+    assert np.array_equal(gate, valid & (d2 <= 11.34)) and not gate[3]
     # 1-point RANSAC by brute force: hypothesis h corrects by Sig H_h^T S_h^-1 r_h.
     inl = np.zeros((F, F), bool)
     for h in range(F):
         dxh = Sig @ H[h].T @ np.linalg.solve(S[h], r[h])
-        inl[:, h] = valid & np.all(np.abs(r - H @ dxh) <= 3.0 * sigma, axis=1)
+        inl[:, h] = valid & np.all(np.abs(r - H @ dxh) <= 3.0 * sd, axis=1)
     count = np.where(valid, inl.sum(0), -1)
     got = np.empty(F, bool)
-    one_point_ransac(r, B, z, sigma, valid, 3.0, got)
+    one_point_ransac(r, B, z, sd, valid, 3.0, got)
     assert np.array_equal(got, inl[:, np.argmax(count)]) and not got[3] and not got[7]

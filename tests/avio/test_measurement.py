@@ -53,6 +53,39 @@ def test_triplet_jacobian_matches_finite_differences():
     assert np.abs((J - J_fd) / scale).max() < 1e-5
 
 
+def test_pixel_jacobian_matches_finite_differences():
+    # G = d r / d pixels at the exact (zero-residual) geometry, where the Sampson distance is
+    # a first-order distance: its pixel gradient has unit norm there.
+    intr, Rc, pc, _, uv = _triplet(np.random.default_rng(2), n=1, noise_px=0.0)
+    poses = relative_poses(Rc, pc)
+    r, _, G = triplet_residuals(uv, *poses, *intr, with_pixel_jacobian=True)
+    eps = 1e-4
+    cols = []
+    for img in range(3):
+        for axis in range(2):
+            d = np.zeros_like(uv)
+            d[:, img, axis] = eps
+            cols.append((triplet_residuals(uv + d, *poses, *intr)[0] - triplet_residuals(uv - d, *poses, *intr)[0])
+                        / (2 * eps))
+    G_fd = np.stack(cols, axis=-1)  # (n, F, 4, 6)
+    assert np.abs(G - G_fd).max() < 1e-4 * max(1.0, np.abs(G_fd).max())
+    assert np.allclose(np.linalg.norm(G[..., :2, :], axis=-1), 1.0, atol=1e-9)
+
+
+def test_residual_covariance_from_pixel_noise_matches_monte_carlo():
+    # sigma^2 G G^T is the covariance of the residuals under pixel noise (small noise, first order).
+    intr, Rc, pc, _, uv = _triplet(np.random.default_rng(3), n=1, F=4, noise_px=0.0)
+    poses = relative_poses(Rc, pc)
+    _, _, G = triplet_residuals(uv, *poses, *intr, with_pixel_jacobian=True)
+    sigma, rng = 0.05, np.random.default_rng(4)
+    draws = np.stack([triplet_residuals(uv + rng.normal(0, sigma, uv.shape), *poses, *intr)[0][0]
+                      for _ in range(4000)])  # (m, F, 4)
+    for f in range(uv.shape[0]):
+        predicted = sigma**2 * G[0, f] @ G[0, f].T
+        measured = np.cov(draws[:, f].T)
+        assert np.allclose(measured, predicted, rtol=0.12, atol=0.12 * np.abs(predicted).max())
+
+
 @pytest.mark.parametrize("time_offset", [False, True])
 def test_state_jacobian_matches_finite_differences(time_offset):
     seq = make_circle_sequence(n_frames=20, pixel_noise_px=1.0)

@@ -15,7 +15,7 @@ from bench.space import SpaceError
 @pytest.mark.parametrize("with_td", [False, True])
 def test_decode_inverts_encode_and_the_reference_decodes_to_the_nominal(kind, with_td):
     nominal = kitti_2011_10_03_calibration()
-    cs = make_calibration_space(kind, nominal, with_time_offset=with_td)
+    cs = make_calibration_space(kind, nominal, with_time_offset=with_td, image_size_px=(1241, 376))
     rng = np.random.default_rng(1)
     X = rng.uniform(cs.space.lower, cs.space.upper, size=(5, cs.space.dim))
     cal = cs.decode(X)
@@ -60,5 +60,16 @@ def test_rectified_reference_leaves_table1_bounds_because_of_gimbal_lock():
     rectified = kitti_2011_10_03_calibration(rectified=True)
     with pytest.raises(SpaceError, match="variable 'roll': reference 173.0"):
         make_calibration_space("paper", rectified)
-    local = make_calibration_space("local", rectified)
+    local = make_calibration_space("local", rectified, image_size_px=(1241, 376))
     np.testing.assert_allclose(local.space.reference[4:], 0.0, atol=1e-12)
+
+
+def test_local_intrinsics_range_comes_from_the_rig_not_from_table_1():
+    from avio.sequence import Calibration
+
+    euroc_like = Calibration.single(458.654, 457.296, 367.215, 248.375, np.eye(3), np.zeros(3))
+    space = make_calibration_space("local", euroc_like, image_size_px=(752, 480)).space
+    lo, hi = dict(zip(space.names, space.lower)), dict(zip(space.names, space.upper))
+    assert lo["fx"] == pytest.approx(458.654 - 0.03 * 458.654) and hi["cx"] == pytest.approx(367.215 + 0.02 * 752)
+    with pytest.raises(SpaceError, match="image size"):
+        make_calibration_space("local", euroc_like)
