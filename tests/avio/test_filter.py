@@ -306,3 +306,11 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     got = np.empty(F, bool)
     one_point_ransac(r, B, z, sd, valid, 3.0, got)
     assert np.array_equal(got, inl[:, np.argmax(count)]) and not got[3] and not got[7]
+
+
+def test_the_transfer_gain_limit_decides_which_features_are_used():
+    seq = make_circle_sequence(n_frames=20, pixel_noise_px=0.5)
+    base = run(seq, seq.truth_calibration, FilterConfig())
+    none = run(seq, seq.truth_calibration, FilterConfig(max_transfer_gain=0.5))
+    assert base.n_updates.sum() > 0 and none.n_updates.sum() == 0
+    assert none.n_outliers.sum() == 0  # degenerate features are not counted as outliers

@@ -121,3 +121,28 @@ def test_state_jacobian_matches_finite_differences(time_offset):
     # The gyro-bias column goes through the first-order time shift exp((w - b_g) td): exact to O(td).
     assert np.abs(H - H_fd)[..., 12:15].max() / scale < (1e-3 if time_offset else 1e-9)
     assert np.all(H[..., 9:12] == 0.0)
+
+
+def _transfer_gain(G):
+    """Largest standard deviation of the transfer per pixel of noise: sqrt of diag(G G^T)."""
+    return np.sqrt(np.einsum("...ac,...ac->...a", G[..., 2:4, :], G[..., 2:4, :])).max(axis=-1)
+
+
+def test_a_middle_image_outlier_near_the_epipole_makes_a_degenerate_transfer():
+    """An outlier in image 2 can put the line through m2 through the epipole: the transfer's
+    noise gain explodes (the filter rejects gains above FilterConfig.max_transfer_gain) while
+    inliers stay near 1-5."""
+    from avio.filter import FilterConfig
+
+    intr, Rc, pc, _, uv = _triplet(np.random.default_rng(5), n=1, F=8, noise_px=0.0)
+    poses = relative_poses(Rc, pc)
+    _, _, G = triplet_residuals(uv, *poses, *intr, with_pixel_jacobian=True)
+    assert _transfer_gain(G).max() < 10.0
+    worst = 0.0
+    for du in np.linspace(-400, 400, 161):
+        for dv in np.linspace(-150, 150, 61):
+            bad = uv[:1].copy()
+            bad[0, 1] += (du, dv)
+            _, _, Gb = triplet_residuals(bad, *poses, *intr, with_pixel_jacobian=True)
+            worst = max(worst, float(_transfer_gain(Gb).max()))
+    assert worst > 10 * FilterConfig().max_transfer_gain
