@@ -107,6 +107,16 @@ def _segments(p_true: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.n
     return F[keep], last[keep], L[keep]
 
 
+def _angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Geodesic angle of ``R_a^T R_b`` (deg), (...): ``atan2(|axis part|, cos part)`` of the
+    product, accurate near 0 (where the devkit's ``acos`` of the trace is not) and ~20x faster
+    than a scipy Rotation round trip on the many segments of a batch."""
+    M = np.einsum("...ji,...jk->...ik", R_a, R_b)
+    cos = 0.5 * (np.einsum("...ii->...", M) - 1.0)
+    axis = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
+    return np.degrees(np.arctan2(0.5 * np.linalg.norm(axis, axis=-1), cos))
+
+
 def drift_metrics(p_est: np.ndarray, R_est: np.ndarray, truth: GroundTruth) -> dict[str, np.ndarray]:
     """Drift of n estimated IMU trajectories against the ground truth, each (n,).
 
@@ -158,7 +168,7 @@ def drift_metrics(p_est: np.ndarray, R_est: np.ndarray, truth: GroundTruth) -> d
         t_e, R_e = delta(p_ok, R_ok)
         # |t(D_est^-1 D_true)| = |R_est^T (t_true - t_est)| = |t_true - t_est|
         t_err = np.linalg.norm(t_true[None] - t_e, axis=-1) / L  # (n, S) m/m
-        r_err = geodesic_angle_deg(R_e, R_true[None]) / L        # (n, S) deg/m
+        r_err = _angle_deg(R_e, R_true[None]) / L                # (n, S) deg/m
         drift = t_err.mean(axis=1)
         t_rel, r_rel = (100 * t_err.mean(axis=1), 100 * r_err.mean(axis=1)) if is_kitti else (nan, nan)
     out = {"t_rel_pct": t_rel, "r_rel_deg_per_100m": r_rel, "drift_m_per_m": drift, "max_jump_m": max_jump}
