@@ -1,0 +1,110 @@
+"""Is the objective's optimum the truth? The invariants and figures of issue 11, printed.
+
+    python scripts/check_objective.py [--seeds 20] [--profile-points 21]
+
+1. Perfect data (noise-free IMU, 0 px, no outliers) on the default 540 m drive with its stop:
+   f(truth) under the position RMSE, and where each variable's 1-D profile has its minimum
+   (a parabola through the three lowest grid points, the others at the truth).
+2. Consistency at the truth on ``synthetic`` (default noise): NIS per degree of freedom of the
+   updates and the median position NEES (per-axis, with the filter's own sigmas), per seed.
+3. Truth against the reference over ``--seeds`` data seeds, under each objective.
+4. When ``results/identifiability/summary.csv`` exists: the identifiability study's table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from avio.objectives import OBJECTIVES  # noqa: E402
+from bench.problems.synthetic import Synthetic  # noqa: E402
+
+PERFECT = {"imu_noise_on": False, "pixel_noise_px": 0.0, "outlier_fraction": 0.0}
+#: half-width of each profile around the truth (px, deg, m in the paper space's order)
+HALF = {"fx": 2.0, "fy": 2.0, "cx": 2.0, "cy": 2.0, "roll": 0.1, "pitch": 0.1, "yaw": 0.1,
+        "tx": 0.02, "ty": 0.02, "tz": 0.02}
+
+
+def perfect_data(points: int) -> None:
+    problem = Synthetic(holdout=None, sim=PERFECT)
+    n_stationary = int(problem._prepared[id(problem.sequence)].stationary.sum())
+    print(f"1. perfect data, default drive ({problem.sequence.n_frames} frames, {n_stationary} standstill frames):"
+          f" f(truth) = {problem.f_truth:.4f} m, f(reference) = {problem.f_reference:.3f} m")
+    names, truth = problem.space.names, problem.truth
+    grids = [truth[i] + np.linspace(-HALF[n], HALF[n], points) for i, n in enumerate(names)]
+    X = np.repeat(truth[None], points * len(names), axis=0)
+    for i, g in enumerate(grids):
+        X[i * points:(i + 1) * points, i] = g
+    X = np.clip(X, problem.space.lower, problem.space.upper)
+    f, _ = problem.evaluate(X)
+    for i, n in enumerate(names):
+        fi, g = f[i * points:(i + 1) * points], X[i * points:(i + 1) * points, i]
+        k = int(np.clip(np.argmin(fi), 1, points - 2))
+        a, b, _ = np.polyfit(g[k - 1:k + 2] - truth[i], fi[k - 1:k + 2], 2)
+        at = -b / (2 * a) if a > 0 else g[k] - truth[i]
+        rise = fi.max() - fi.min()
+        unit = problem.space.units[i]
+        if rise < 1e-4:  # flat: the drive does not determine this variable (PAPER.md §6)
+            print(f"   {n:>5}: flat (rise over +-{HALF[n]} {unit}: {rise:.1e} m): not determined by this drive")
+            continue
+        print(f"   {n:>5}: profile minimum {at:+.4f} {unit} from the truth (rise over +-{HALF[n]} {unit}: {rise:.4f} m)")
+
+
+def consistency_and_ranking(seeds: int) -> None:
+    rows = []
+    for seed in range(seeds):
+        problem = Synthetic(holdout=None, data_seed=seed)
+        cal = problem.sequence.truth_calibration
+        anchors = type(cal).stack([cal, problem.sequence.reference_calibration])
+        result = problem.run_filter(anchors)
+        err = result.p_world_imu_m[0] - problem.sequence.truth.p_world_imu_m
+        nees = float(np.median(np.sum((err / result.sigma[0, :, :3]) ** 2, axis=1)))
+        _, metrics = problem.score(anchors)
+        rows.append((seed, metrics["nis_per_dof"][0], nees, *(metrics[k] for k in ("position_rmse_m", "innovation_nll"))))
+    print("2. consistency at the truth (synthetic, default noise):")
+    nis = np.array([r[1] for r in rows])
+    nees = np.array([r[2] for r in rows])
+    print(f"   NIS/dof median {np.median(nis):.3f} (range {nis.min():.3f}-{nis.max():.3f}); "
+          f"position NEES median over seeds {np.median(nees):.2f} (range {nees.min():.2f}-{nees.max():.2f}; 3 expected)")
+    print(f"3. truth against reference over {seeds} data seeds:")
+    for j, name in enumerate(("position_rmse_m", "innovation_nll")):
+        truth = np.array([r[3 + j][0] for r in rows])
+        ref = np.array([r[3 + j][1] for r in rows])
+        wins = int(np.sum(truth < ref))
+        print(f"   {OBJECTIVES[j]:>14}: truth better in {wins}/{seeds} seeds; "
+              f"median truth {np.median(truth):.4f}, reference {np.median(ref):.4f}, paired difference "
+              f"{np.median(ref - truth):+.4f}")
+
+
+def identifiability_summary() -> None:
+    path = ROOT / "results" / "identifiability" / "summary.csv"
+    if not path.is_file():
+        print(f"4. {path.relative_to(ROOT)} not found (make it with bash scripts/make_identifiability.sh)")
+        return
+    import pandas as pd
+
+    print("4. identifiability study (results/identifiability/summary.csv):")
+    print(pd.read_csv(path).to_string(index=False))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--profile-points", type=int, default=21)
+    args = parser.parse_args()
+    start = time.perf_counter()
+    perfect_data(args.profile_points)
+    consistency_and_ranking(args.seeds)
+    identifiability_summary()
+    print(f"({time.perf_counter() - start:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
