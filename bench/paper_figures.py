@@ -62,7 +62,7 @@ def best_so_far_values(job_dir: Path, names: list[str]) -> pd.DataFrame:
 def convergence_figures(space: dict, records: list[dict], out: Path, log=None) -> list[Path]:
     """Figs. 5–7: per optimiser, every variable's best-so-far value against evaluations and
     seconds, one line per seed. ``space``: the artifacts manifest's ``space``; ``log``: called
-    with a line before each optimiser's figures are drawn (they take seconds each)."""
+    with a line before each figure is drawn (a few seconds each)."""
     names, units = space["names"], space["units"]
     written = []
     for optimizer in sorted({r["optimizer"] for r in records}):
@@ -77,9 +77,9 @@ def convergence_figures(space: dict, records: list[dict], out: Path, log=None) -
             if is_current(path, key):
                 written.append(path)
                 continue
+            if log:
+                log(f"  convergence figure {path.name}")
             if runs is None:
-                if log:
-                    log(f"  convergence figures of {optimizer}")
                 runs = [(int(r["seed"]), best_so_far_values(Path(r["job_dir"]), names)) for r in mine]
             fig, axes = _grid(len(names))
             for i, (ax, name) in enumerate(zip(axes, names)):
