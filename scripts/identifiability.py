@@ -1,0 +1,115 @@
+"""Summarise the identifiability study (scripts/make_identifiability.sh): per configuration
+(objective x drives x free variables), the calibrated camera's errors against the truth and the
+held-out RMSE at the calibrated and at the reference calibration, medians over the seeds.
+
+    python scripts/identifiability.py results/identifiability
+
+Writes ``summary.csv`` and ``summary.png`` into the folder. The held-out drive of data seed s is
+the same camera on an independent ~928 m drive (bench/problems/synthetic.py); it is evaluated
+here, once per seed, for every configuration's calibration and the reference in one batch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from avio.calibration_error import calibration_errors  # noqa: E402
+from avio.metrics import position_rmse_objective  # noqa: E402
+from avio.sequence import Calibration  # noqa: E402
+from bench.problems.synthetic import Synthetic, SyntheticParams  # noqa: E402
+from bench.problems.vio import _plain  # noqa: E402
+
+ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
+
+
+def load(folder: Path) -> pd.DataFrame:
+    rows = []
+    for path in sorted(folder.glob("*/synthetic/*/seed*/record.json")):
+        record = json.loads(path.read_text())
+        if record.get("status") != "ok":
+            continue
+        params = record["config"]["problem"]["params"]
+        rows.append({"config": path.relative_to(folder).parts[0], "objective": params["objective"],
+                     "drives": len(params["drives"]), "free": len(record["best_x"]), "seed": record["seed"],
+                     "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
+                     "best_f": record["best_f"], **{k: record["best_metrics"][k] for k in ERRORS}})
+    if not rows:
+        raise SystemExit(f"{folder}: no finished records")
+    return pd.DataFrame(rows)
+
+
+def held_out(runs: pd.DataFrame) -> pd.DataFrame:
+    """Held-out RMSE (m) of each run's best calibration and of the reference, per data seed."""
+    out = []
+    for data_seed, group in runs.groupby("data_seed"):
+        problem = Synthetic(drives=["paper_540m"], holdout="paper_928m", data_seed=int(data_seed), space="local")
+        cals = []
+        for _, row in group.iterrows():
+            params = SyntheticParams(**{k: _plain(v) for k, v in row["params"].items()})
+            space = params.space_for(problem.sequence.reference_calibration, problem.sequence.image_size_px)
+            cals.append(space.decode(np.asarray(row["best_x"], float)[None]))
+        batch = Calibration.stack(cals + [problem.sequence.reference_calibration])
+        result = problem.run_filter(batch, problem.holdout)
+        rmse = position_rmse_objective(result, problem.holdout.truth, problem.divergence_penalty_m)
+        ref_errors = calibration_errors(problem.sequence.reference_calibration, problem.sequence.truth_calibration)
+        for i, (index, _) in enumerate(group.iterrows()):
+            out.append({"index": index, "holdout_rmse_m": rmse[i], "holdout_rmse_reference_m": rmse[-1],
+                        **{f"reference_{k}": float(ref_errors[k][0]) for k in ERRORS}})
+    return pd.DataFrame(out).set_index("index")
+
+
+def summarise(runs: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for (objective, drives, free), g in runs.groupby(["objective", "drives", "free"], sort=False):
+        row = {"objective": objective, "drives": drives, "free": free, "seeds": len(g)}
+        for k in ERRORS:
+            row[k] = g[k].median()
+            row[f"reference_{k}"] = g[f"reference_{k}"].median()
+        row["holdout_rmse_m"] = g["holdout_rmse_m"].median()
+        row["holdout_rmse_reference_m"] = g["holdout_rmse_reference_m"].median()
+        row["holdout_better_than_reference"] = f"{int((g.holdout_rmse_m < g.holdout_rmse_reference_m).sum())}/{len(g)}"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def figure(summary: pd.DataFrame, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 3.6))
+    labels = [f"{r.objective}\n{r.drives} drive(s), {r.free} free" for r in summary.itertuples()]
+    for ax, k, unit in zip(fig.subplots(1, 4), ERRORS, ("deg", "px", "px", "cm")):
+        ax.bar(range(len(summary)), summary[k], color="tab:blue")
+        ax.axhline(summary[f"reference_{k}"].median(), color="tab:red", ls="--", label="reference")
+        ax.set_xticks(range(len(summary)), labels, rotation=90, fontsize=6)
+        ax.set_title(f"{k.replace('_error', '').replace('_', ' ')} ({unit})", fontsize=8)
+        ax.legend(fontsize=6)
+    fig.suptitle("Calibration error of CMA-ES's best point, median over seeds (synthetic, local space)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    fig.savefig(path.with_suffix(".pdf"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", type=Path)
+    folder = parser.parse_args().folder
+    runs = load(folder)
+    runs = runs.join(held_out(runs))
+    runs.drop(columns=["params", "best_x"]).to_csv(folder / "runs.csv", index=False, float_format="%.6g")
+    summary = summarise(runs)
+    summary.to_csv(folder / "summary.csv", index=False, float_format="%.4g")
+    figure(summary, folder / "summary.png")
+    print(summary.to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()
