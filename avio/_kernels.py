@@ -11,8 +11,10 @@ does not notice edits to functions of other modules called from a cached one: af
 avio/measurement.py, avio/outliers.py, avio/_linalg.py or avio/imu_propagation.py, delete
 avio/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
 numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
-filter runs alone (a loop over the batch inside the kernel), so a batch gives the same numbers
-as single runs.
+filter runs alone on one thread (:func:`run_filters` cuts the batch into contiguous ranges, one
+per thread, with ``prange``; :func:`_run_range` runs a range's filters one after the other with
+one set of workspaces, allocated once, so nothing is allocated per frame), so a batch gives the
+same numbers as single runs whatever the thread count.
 
 Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (filter.py).
 One filter: R (3, 3) ``R_world_imu``; p, v, ba, bg (3,); clones cp0, cp1 (3,), cR0, cR1 (3, 3)
@@ -29,7 +31,8 @@ import numpy as np
 from avio._linalg import matmul, so3_exp, solve
 from avio.imu_propagation import propagate_one, propagate_workspace
 from avio.measurement import feature_residuals, rot_t
-from avio.outliers import _cholesky, feature_innovations, mahalanobis_gate, one_point_ransac
+from avio.outliers import (_cholesky, feature_innovations_into, innovations_workspace, mahalanobis_gate,
+                           one_point_ransac_into, ransac_workspace)
 
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3
 
@@ -205,6 +208,15 @@ def noise_workspace(F):
             np.empty(12))
 
 
+@numba.njit(cache=True, error_model="numpy")
+def outlier_workspace(F):
+    """Scratch arrays of the outlier tests of :func:`update` for F features
+    (avio.outliers.innovations_workspace, then avio.outliers.ransac_workspace)."""
+    Lp, S, L, y = innovations_workspace(M, 12)
+    Y, moved, inlier, count = ransac_workspace(F, M, 12)
+    return Lp, S, L, y, Y, moved, inlier, count
+
+
 LOG_2PI = np.log(2.0 * np.pi)
 #: The residuals the update uses, of the 4 of avio.measurement: the 1-2 Sampson distance and the
 #: two transfer coordinates. A point seen in three images gives 3 independent constraints (6
@@ -243,7 +255,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR, f):
 
 @numba.njit(cache=True, error_model="numpy")
 def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma_px,
-           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws):
+           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows):
     """One trifocal update of one filter (state and covariance Pi (27, 27) in place).
 
     Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
@@ -264,11 +276,12 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     rejected, the update's NIS, log det S and residual count, its NLL contribution with the
     capped terms of the valid features it did not use, and the residual slots (4 per valid
     feature). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
-    :func:`noise_workspace`.
+    :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
     """
     F, d = uv.shape[0], 12
     r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3, jw = ws
     G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, beta = nws
+    oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
     measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws)
     # Without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
@@ -321,7 +334,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
     inl[:] = ok
-    feature_innovations(r, J, Sig, Rm, HP, z, ldS)
+    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, oLp, oS, oL, oy)
     # The score (avio/objectives.py): every valid feature's own innovation likelihood, its
     # squared Mahalanobis distance capped at the gate, whatever the update does with it.
     nll = 0.0
@@ -335,7 +348,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             else:
                 nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
     if mode == MODE_RANSAC or mode == MODE_BOTH:
-        one_point_ransac(r, HP, z, sd, ok, ransac_threshold_sigma, inl)
+        one_point_ransac_into(r, HP, z, sd, ok, ransac_threshold_sigma, inl, oY, omoved, oinlier, ocount)
     if mode == MODE_GATE or mode == MODE_BOTH:
         mahalanobis_gate(r, z, inl, chi2_threshold, gate)
         inl[:] = gate
@@ -494,8 +507,21 @@ def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, 
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
     (symmetrised), then the injection. A full update: the position error accumulated while
     braking is corrected through the position-velocity correlation (a "consider" update of
-    the velocity and biases only was tried: 4.9 m instead of 1.4 m at the truth, seed 0)."""
-    S, Z, dx = np.empty((3, 3)), np.empty((3, 28)), np.empty(27)
+    the velocity and biases only was tried: 4.9 m instead of 1.4 m at the truth, seed 0).
+    Allocates its scratch; the filter calls :func:`zero_velocity_update_into`."""
+    S, Z, dx, K = zero_velocity_workspace()
+    zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def zero_velocity_workspace():
+    """Scratch arrays of :func:`zero_velocity_update_into`: S (3, 3), Z (3, 28), dx (27,), K (27, 27)."""
+    return np.empty((3, 3)), np.empty((3, 28)), np.empty(27), np.empty((27, 27))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K):
+    """:func:`zero_velocity_update` with its scratch passed in (:func:`zero_velocity_workspace`)."""
     for a in range(3):
         for b in range(3):
             S[a, b] = Pi[6 + a, 6 + b] + (sigma_mps * sigma_mps if a == b else 0.0)
@@ -505,7 +531,6 @@ def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, 
     solve(S, Z)
     for a in range(27):
         dx[a] = Pi[a, 6] * Z[0, 27] + Pi[a, 7] * Z[1, 27] + Pi[a, 8] * Z[2, 27]
-    K = np.empty((27, 27))
     for a in range(27):
         for b in range(27):
             K[a, b] = Pi[a, 6] * Z[0, b] + Pi[a, 7] * Z[1, b] + Pi[a, 8] * Z[2, b]
@@ -536,12 +561,12 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", parallel=True)
 def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
                 valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
                 mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
                 out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                out_nll, out_slots):
+                out_nll, out_slots, n_chunks):
     """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order: prediction
     (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
@@ -552,9 +577,32 @@ def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, g
     innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
     contribution and residual slots (:func:`update`; zero where no trifocal update ran).
     The biases start at ba0, bg0 (3,), the prior means.
+    The batch is cut into ``n_chunks`` contiguous ranges run in parallel (numba ``prange``,
+    one thread per range, avio/filter.py: set_threads); each filter is computed by one thread
+    with the same operations as alone, so the bits do not depend on the batch or thread count.
     """
-    n, N, F = fx.shape[0], T_s.shape[0], uv.shape[1]
+    n = fx.shape[0]
+    for c in numba.prange(n_chunks):
+        _run_range(c * n // n_chunks, (c + 1) * n // n_chunks, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+                   valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
+                   mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
+                   out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
+                   out_nll, out_slots)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _run_range(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+                valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
+                mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
+                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
+                out_nll, out_slots):
+    """Filters lo..hi-1 of :func:`run_filters`, one after the other, with one set of workspaces
+    (allocated here, once per range; nothing is allocated in the frame loop)."""
+    N, F = T_s.shape[0], uv.shape[1]
     ws, mws, pws, nws = update_workspace(F), measure_workspace(), propagate_workspace(), noise_workspace(F)
+    ows = outlier_workspace(F)
+    zS, zZ, zdx, zK = zero_velocity_workspace()
+    omega = np.empty(3)
     R, p, v, ba, bg = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     cp, cR, P = np.empty((2, 3)), np.empty((2, 3, 3)), np.empty((27, 27))
     R_new, v_new, p_new, Phi = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((15, 15))
@@ -562,7 +610,7 @@ def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, g
     R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
     ba_s, bg_s = np.empty(3), np.empty(3)
     sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))
-    for i in range(n):
+    for i in range(lo, hi):
         R[:] = R0
         p[:] = p0
         v[:] = v0
@@ -583,7 +631,6 @@ def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, g
         out_slots[i, :] = 0
         div_at[i] = 0 if frozen[i] else -1
         k_stop = 0 if frozen[i] else N
-        omega = np.empty(3)
         for k in range(k_stop):
             ba_s[:] = ba
             bg_s[:] = bg
@@ -599,13 +646,13 @@ def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, g
                 omega[a] = gyro_frame[k, a] - bg[a]
             j = triplet_of_frame[k]
             if k >= 2 and stationary[k] and zero_velocity_sigma_mps > 0:
-                zero_velocity_update(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
-                                     zero_velocity_sigma_mps, E, T3)
+                zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
+                                          zero_velocity_sigma_mps, E, T3, zS, zZ, zdx, zK)
             elif k >= 2 and j >= 0:
                 used, rej, nis, ldS, dof, nll, slots = update(
                     R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega, td[i], fx[i], fy[i], cx[i],
                     cy[i], Rci[i], pic[i], uv[j], valid[j], sigma_px, max_transfer_gain, min_parallax_m, mode,
-                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws)
+                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows)
                 n_upd[i, k], n_out[i, k] = used, rej
                 out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
             slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)

@@ -6,9 +6,12 @@ preintegration, feature selection, process noise) is numpy, once per sequence
 (:func:`prepare`); the filters themselves run in one compiled numba kernel
 (avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
 the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
-(pure numpy reached ~20 evaluations/s at batch 64, the kernel ~50, see
-scripts/bench_filter.py). Each filter is computed alone, so a batch gives the same bits as
-single runs; no fastmath, so results are deterministic.
+(pure numpy reached ~20 evaluations/s at batch 64, see scripts/bench_filter.py for the kernel's).
+The batch is split over threads (:func:`set_threads`; numba ``prange`` over contiguous ranges of
+calibrations) and each filter is computed by one thread with the same operations as alone, so a
+batch gives the same bits as single runs whatever its size and the thread count; no fastmath,
+so results are deterministic. The first call of a process with a cold numba cache compiles the
+kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
 
 State (nominal): ``p_world_imu`` (m), ``R_world_imu``, ``v_world_imu`` (m/s), accelerometer and
 gyro biases ``b_a`` (m/s^2), ``b_g`` (rad/s), and two clones of the camera-exposure IMU pose of
@@ -66,9 +69,15 @@ with local rotation errors (``R_true = R exp(dtheta)``).
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+import numba
 import numpy as np
 from scipy.stats import chi2
 
@@ -79,6 +88,77 @@ from avio.sequence import Calibration, Sequence
 
 class FilterError(ValueError):
     """Bad input to the filter (sequence, calibrations or config); the message says what."""
+
+
+_THREADS: int | None = None  # set_threads(); None: the default rule
+
+
+def default_threads() -> int:
+    """Threads of the filter kernel when :func:`set_threads` was not called: numba's
+    NUMBA_NUM_THREADS (the machine's cores unless the environment says otherwise). joblib's
+    loky workers (the Hydra joblib launcher) get ``NUMBA_NUM_THREADS = cores // n_jobs`` from
+    joblib, so two workers on two cores run one thread each and do not oversubscribe."""
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
+def set_threads(n: int | None = None) -> int:
+    """Threads the filter kernel splits a batch over (each filter on one thread, so results do
+    not depend on it); None restores :func:`default_threads`. Rule for launchers running
+    several filter processes on one machine: ``threads = max(1, cores // processes)``. At most
+    NUMBA_NUM_THREADS (numba's pool is sized at import); returns the count in effect."""
+    global _THREADS
+    if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+        raise FilterError(f"set_threads: n must be an integer >= 1 or None, got {n!r}")
+    _THREADS = None if n is None else min(int(n), int(numba.config.NUMBA_NUM_THREADS))
+    return threads()
+
+
+def threads() -> int:
+    """The filter kernel's thread count now (:func:`set_threads`)."""
+    return _THREADS if _THREADS is not None else default_threads()
+
+
+#: Measured first-run compile time of the kernel on the 2-core development machine, seconds
+#: (scripts/bench_filter.py speed prints it), quoted in the message before a cold compile.
+COMPILE_ESTIMATE_S = 40
+_kernel_loaded = False
+
+
+def _kernel_cached() -> bool | None:
+    """Whether numba's cache holds the filter kernel for the current source (None: unknown)."""
+    try:
+        return bool(_kernels.run_filters._cache._cache_file._load_index())
+    except AttributeError:  # numba's private cache API changed: cannot tell
+        return None
+
+
+@contextmanager
+def _announce_compile():
+    """Say so on stderr when the first kernel call of the process will compile it (a cold
+    numba cache), print a heartbeat every 10 s while it does and how long it took."""
+    global _kernel_loaded
+    if _kernel_loaded or _kernel_cached():
+        _kernel_loaded = True
+        yield
+        return
+    print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in "
+          f"{os.path.dirname(_kernels.__file__)}/__pycache__ or NUMBA_CACHE_DIR)", file=sys.stderr, flush=True)
+    done = threading.Event()
+    t0 = time.perf_counter()
+
+    def heartbeat():
+        while not done.wait(10.0):
+            print(f"  still compiling the VIO filter ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    beat = threading.Thread(target=heartbeat, name="avio-compile-heartbeat", daemon=True)
+    beat.start()
+    try:
+        yield
+    finally:
+        done.set()
+        beat.join()
+    _kernel_loaded = True
+    print(f"compiled the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
 
 @lru_cache(maxsize=None)
@@ -397,9 +477,11 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
          cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
     out_nis, out_ldS, out_nll = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
     out_dof, out_slots = np.empty((n, N), np.int64), np.empty((n, N), np.int64)
+    n_threads = min(threads(), n)
+    numba.set_num_threads(max(1, min(threads(), int(numba.config.NUMBA_NUM_THREADS))))
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
         _kernels.run_filters(
             st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
             pre.dp, pre.S, pre.SS,
@@ -408,6 +490,6 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
             float(c.max_transfer_gain), c.min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
             c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
             out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
-            out_slots)
+            out_slots, n_threads)
     return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
                         out_nis, out_ldS, out_dof, out_nll, out_slots, meta={"config": config})

@@ -46,18 +46,30 @@ def _cholesky(S, L):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def innovations_workspace(m, d):
+    """Scratch arrays of :func:`feature_innovations_into` (m residuals per feature, d parameters):
+    Lp (d, d), S (m, m), L (m, m), y (m,); allocated once per run, not per call."""
+    return np.empty((d, d)), np.empty((m, m)), np.empty((m, m)), np.empty(m)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def feature_innovations(r, H, P, Rm, B, z, logdet):
     """Per-feature ``B_j = H_j L`` (F, 4, d) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``),
     ``z_j = S_j^-1 r_j`` (F, 4) with ``S_j = H_j P H_j^T + R_j = B_j B_j^T + R_j`` and
     ``logdet_j = log det S_j`` (F,), written into B, z and logdet; shared by both tests. Through
-    L the products cost half of ``H_j P`` (L is triangular).
+    L the products cost half of ``H_j P`` (L is triangular). Allocates its scratch; the filter
+    calls :func:`feature_innovations_into` with a workspace.
     """
     F, m, d = H.shape
-    Lp = np.empty((d, d))
+    Lp, S, L, y = innovations_workspace(m, d)
+    feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
+    """:func:`feature_innovations` with its scratch passed in (:func:`innovations_workspace`)."""
+    F, m, d = H.shape
     _cholesky(P, Lp)
-    S = np.empty((m, m))
-    L = np.empty((m, m))
-    y = np.empty(m)
     for f in range(F):
         for a in range(m):
             for c in range(d):
@@ -102,20 +114,36 @@ def mahalanobis_gate(r, z, valid, chi2_threshold, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def ransac_workspace(F, m, d):
+    """Scratch arrays of :func:`one_point_ransac_into` for F features of m residuals and d
+    parameters: Y (d, F), moved (F m, F), inlier (F, F) bool, count (F,) int64."""
+    return np.empty((d, F)), np.empty((F * m, F)), np.empty((F, F), np.bool_), np.empty(F, np.int64)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
-    B, z from :func:`feature_innovations`; sd (F, 4) the residuals' measurement standard deviations."""
+    B, z from :func:`feature_innovations`; sd (F, 4) the residuals' measurement standard deviations.
+    Allocates its scratch; the filter calls :func:`one_point_ransac_into` with a workspace."""
+    F, m, d = B.shape
+    Y, moved, inlier, count = ransac_workspace(F, m, d)
+    one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count):
+    """:func:`one_point_ransac` with its scratch passed in (:func:`ransac_workspace`)."""
     F, m, d = B.shape
     # Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h = L y_h with y_h = B_h^T z_h
     # (columns of Y, (d, F)); every feature's residual then moves by
     # H_j dx_h = B_j y_h: moved = B Y, ((j, a), h).
-    Y = np.zeros((d, F))
+    Y[:] = 0.0
     for h in range(F):
         for a in range(m):
             zh = z[h, a]
             for c in range(d):
                 Y[c, h] += zh * B[h, a, c]
-    moved = np.zeros((F * m, F))
+    moved[:] = 0.0
     for j in range(F):
         for a in range(m):
             row = moved[j * m + a]
@@ -126,7 +154,6 @@ def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
                         row[h] += bc * Y[c, h]
     # inlier[j, h]: every residual of feature j within the threshold after hypothesis h (loops
     # run along h, contiguous, without early exits, so they vectorise).
-    inlier = np.empty((F, F), np.bool_)
     for j in range(F):
         for h in range(F):
             inlier[j, h] = valid[j]
@@ -136,7 +163,7 @@ def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
             row = moved[j * m + a]
             for h in range(F):
                 inlier[j, h] &= abs(rja - row[h]) <= thr
-    count = np.zeros(F, np.int64)
+    count[:] = 0
     for j in range(F):
         for h in range(F):
             count[h] += inlier[j, h]
