@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -212,19 +213,26 @@ def _hydra_overrides(argv: list[str]) -> list[str]:
             and "=" in a and not a.startswith(("hydra/", "hydra.launcher", "hydra.sweeper", "hydra.callbacks"))]
 
 
-def _job_dir(job_overrides: list[str], hydra_overrides: list[str]) -> tuple[Path | None, Path | None]:
-    """(sweep dir, job dir) as Hydra will resolve them; None where they cannot be resolved here
-    (a subdir template that uses Hydra's runtime values)."""
+def _job_dir(hcfg) -> tuple[Path | None, Path | None]:
+    """(sweep dir, job dir) as Hydra will resolve them from a config composed with its hydra node;
+    None where they cannot be resolved here (a subdir template that uses Hydra's runtime values)."""
     try:
-        hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
         sweep = OmegaConf.select(hcfg, "hydra.sweep.dir", throw_on_resolution_failure=True)
-    except (OmegaConfBaseException, HydraException, ValueError):
+    except (OmegaConfBaseException, ValueError):
+        return None, None
+    if sweep is None:
         return None, None
     try:
         sub = OmegaConf.select(hcfg, "hydra.sweep.subdir", throw_on_resolution_failure=True)
     except (OmegaConfBaseException, ValueError):
         return Path(str(sweep)), None
     return Path(str(sweep)), (Path(str(sweep)) / str(sub) if sub is not None else None)
+
+
+def _job_part(hcfg) -> dict:
+    """The job's own config (Hydra's node left out), resolved, as plain data."""
+    node = OmegaConf.masked_copy(hcfg, [k for k in hcfg if k != "hydra"])
+    return OmegaConf.to_container(node, resolve=True)
 
 
 def plan(argv: list[str]) -> SweepPlan:
@@ -235,14 +243,18 @@ def plan(argv: list[str]) -> SweepPlan:
     hydra_overrides = _hydra_overrides(argv)
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
-            for job_overrides in expand_jobs(argv):
-                cfg = OmegaConf.to_container(compose("config", overrides=job_overrides), resolve=True)
+            jobs = expand_jobs(argv)
+            if len(jobs) > 4:
+                print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
+            for job_overrides in jobs:
+                hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
+                cfg = _job_part(hcfg)
                 key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
                 if key not in seen:
                     seen.add(key)
                     check_job(cfg)
                 result.n_jobs += 1
-                sweep_dir, job_dir = _job_dir(job_overrides, hydra_overrides)
+                sweep_dir, job_dir = _job_dir(hcfg)
                 if sweep_dir is not None and result.sweep_dir is None:
                     result.sweep_dir = sweep_dir
                     check_sweep_dir(sweep_dir)
