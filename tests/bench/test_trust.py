@@ -293,3 +293,27 @@ def test_progress_bar_shows_evaluations_best_f_and_is_redrawn_during_a_long_batc
     assert any("64/64" in f and "best f" in f for f in frames)
     # two batches of 1.5 s each, redrawn every 0.5 s: several frames, not only one per batch
     assert len(frames) >= 5, frames
+
+
+def test_a_problem_that_fails_to_build_records_a_failure_without_blocking_a_later_run(tmp_path, monkeypatch):
+    from bench import job as job_module
+    from bench.problems import ProblemError
+
+    cfg = {"problem": {"name": "sphere", "params": {}}, "optimizer": {"name": "random", "params": {"batch_size": 8}},
+           "seed": 0, "budget": {"evals": 16, "seconds": None}, "progress": False, "plugins": []}
+    real = job_module.build_problem
+
+    def broken(cfg):
+        raise ProblemError("data folder vanished")
+
+    monkeypatch.setattr(job_module, "build_problem", broken)
+    failed = run_configured_job(cfg, tmp_path / "job")
+    assert failed["status"] == "failed" and failed["error"]["message"] == "data folder vanished"
+    monkeypatch.setattr(job_module, "build_problem", real)
+    done = run_configured_job(cfg, tmp_path / "job")
+    assert done["status"] == "ok" and done["n_evals"] == 16  # the failed record did not block the job
+    monkeypatch.setattr(job_module, "build_problem", broken)
+    before = (tmp_path / "job" / "record.json").read_bytes()
+    refused = run_configured_job(cfg, tmp_path / "job")
+    assert refused["status"] == "refused" and "finished record is left unchanged" in refused["error"]["message"]
+    assert (tmp_path / "job" / "record.json").read_bytes() == before
