@@ -2,7 +2,8 @@
 
     python scripts/bench_filter.py accuracy [--seeds 0 1 2] [--set key=value ...]
     python scripts/bench_filter.py outliers [--seeds 0 1 2]
-    python scripts/bench_filter.py speed [--batches 1 8 32 64 128] [--repeats 3]
+    python scripts/bench_filter.py speed [--batches 1 8 64 256] [--threads 1 2] [--repeats 5]
+                                         [--skip scaling harness job compile]
     python scripts/bench_filter.py profile [--batch 64]
 
 accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the truth calibration
@@ -10,9 +11,13 @@ accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the tru
     kitti00 windows (real IMU, simulated camera; frames 15–796 and 2404–3553), one line per seed.
 outliers: the same for each outlier_rejection mode (how the default was chosen).
 speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) for each batch
-    size (median of --repeats runs, the calibration-independent preparation and the first
-    call's numba compile/cache load excluded and reported separately), the speed-up per
-    evaluation over batch 1, and the peak memory.
+    size and kernel thread count (avio.filter.set_threads; median of --repeats runs, wall and
+    process CPU; the calibration-independent preparation and the first call's numba cache load
+    excluded and reported separately), the per-evaluation gain of batch 64 on all threads over
+    batch 1 on one, the peak memory, a scaling line (ms per evaluation against frames and
+    features per update), the harness overhead (scripts/bench_harness.py), the default job's
+    wall time (psoga, 500 evaluations on ``synthetic``) and the first-run compile time (a
+    subprocess with an empty NUMBA_CACHE_DIR).
 profile: cProfile of one batch, top functions by own time.
 The data folder is --data (default ../shared/data relative to the repository root).
 """
@@ -24,18 +29,21 @@ import cProfile
 import os
 import pstats
 import resource
+import subprocess
 import sys
+import tempfile
 import time
 import tracemalloc
 from dataclasses import replace
 from pathlib import Path
 
+import numba
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from avio.filter import FilterConfig, prepare, run  # noqa: E402
+from avio.filter import FilterConfig, prepare, run, set_threads  # noqa: E402
 from avio.geometry import so3_exp  # noqa: E402
 from avio.metrics import pose_errors  # noqa: E402
 from avio.sequence import Calibration  # noqa: E402
@@ -94,41 +102,125 @@ def _candidates(cal: Calibration, n: int, seed: int) -> Calibration:
     )
 
 
-def speed(args, config: FilterConfig) -> None:
+def _kitti(args, first=15, last=796):
     from avio.kitti00 import load_kitti00
 
-    seq = load_kitti00(Path(args.data) / "kitti00", 15, 796, seed=0)
+    return load_kitti00(Path(args.data) / "kitti00", first, last, seed=0)
+
+
+def _time_batch(seq, cals, config, prep, repeats):
+    """Median wall and process-CPU seconds of ``repeats`` runs of one batch."""
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        run(seq, cals, config, prep)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return float(np.median(wall)), float(np.median(cpu))
+
+
+def _subprocess_s(cmd, env=None, cwd=REPO):
+    """Wall seconds of a command (its output kept for the error message)."""
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited {done.returncode}: {done.stderr[-2000:]}")
+    return time.perf_counter() - t0, done
+
+
+_COLD = """import sys, time
+sys.path.insert(0, {repo!r})
+from avio.filter import FilterConfig, prepare, run
+from avio.kitti00 import load_kitti00
+seq = load_kitti00({data!r}, 15, 60, seed=0)
+prep = prepare(seq, FilterConfig())
+t0 = time.perf_counter()
+run(seq, seq.truth_calibration, FilterConfig(), prep)
+print(f"{{time.perf_counter() - t0:.2f}}")
+"""
+
+
+def speed(args, config: FilterConfig) -> None:
+    """Evaluations/s on kitti00 15-796 per batch size and thread count, the batching gain, memory,
+    scaling in frames and features, the harness overhead, the default job and the cold compile."""
+    seq = _kitti(args)
     t0 = time.perf_counter()
     prep = prepare(seq, config)
     t_prep = time.perf_counter() - t0
     print(f"kitti00 15-796: {seq.n_frames} frames, {seq.tracks.n_features.mean():.1f} tracked features per "
-          f"triplet, {int(prep.valid.sum(1).mean())} used per update; prepare() {t_prep:.2f} s (once per sequence)")
-    print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at start")
-    # The filter is a numba kernel: the first call in a process compiles it (no cache yet,
-    # ~25 s on this machine) or loads it from avio/__pycache__ (~1 s); not part of the figures.
+          f"triplet, {prep.valid.sum(1).mean():.1f} used per update; prepare() {t_prep:.2f} s (once per sequence)")
+    print(f"machine: {os.cpu_count()} cores, numba {numba.__version__}, NUMBA_NUM_THREADS "
+          f"{numba.config.NUMBA_NUM_THREADS}, load average {os.getloadavg()[0]:.2f} at start", flush=True)
     t0 = time.perf_counter()
-    run(seq, _candidates(seq.truth_calibration, 1, seed=0), config, prep)
-    print(f"first call (numba compile or cache load): {time.perf_counter() - t0:.2f} s")
+    run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)
+    print(f"first call (numba cache load, or compile on a cold cache): {time.perf_counter() - t0:.2f} s", flush=True)
     per_eval = {}
-    for n in args.batches:
-        cals = _candidates(seq.truth_calibration, n, seed=n)
-        times = []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            run(seq, cals, config, prep)
-            times.append(time.perf_counter() - t0)
-        t = float(np.median(times))
-        per_eval[n] = t / n
-        print(f"batch {n:4d}: {t:7.3f} s per batch (median of {args.repeats}), {n / t:8.1f} evaluations/s, "
-              f"speed-up per evaluation over batch 1: {per_eval[args.batches[0]] / per_eval[n]:6.1f}x", flush=True)
+    for n_threads in args.threads:
+        set_threads(n_threads)
+        run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)  # starts the thread pool
+        for n in args.batches:
+            wall, cpu = _time_batch(seq, _candidates(seq.truth_calibration, n, seed=n), config, prep, args.repeats)
+            per_eval[n_threads, n] = wall / n
+            print(f"threads {n_threads} batch {n:4d}: {n / wall:7.1f} evaluations/s ({1e3 * wall / n:6.2f} ms per "
+                  f"evaluation, CPU {1e3 * cpu / n:6.2f} ms; median of {args.repeats}, batch {wall:6.3f} s)",
+                  flush=True)
+    set_threads(None)
+    t_lo, t_hi = min(args.threads), max(args.threads)
+    if (t_lo, 1) in per_eval and (t_hi, 64) in per_eval:
+        print(f"batch 64 x {t_hi} threads vs batch 1 x {t_lo} thread, per evaluation: "
+              f"{per_eval[t_lo, 1] / per_eval[t_hi, 64]:.2f}x; batch 64 vs batch 1 at {t_lo} thread: "
+              f"{per_eval[t_lo, 1] / per_eval[t_lo, 64]:.2f}x", flush=True)
     n = args.memory_batch
     tracemalloc.start()
     run(seq, _candidates(seq.truth_calibration, n, seed=1), config, prep)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"peak traced numpy/python memory at batch {n}: {peak / 2**20:.1f} MiB; process max RSS {rss:.0f} MiB")
+    print(f"peak traced numpy/python memory at batch {n}: {peak / 2**20:.1f} MiB; process max RSS {rss:.0f} MiB",
+          flush=True)
+    if "scaling" not in args.skip:
+        _scaling(args, config)
+    if "harness" not in args.skip:
+        _, done = _subprocess_s([sys.executable, "scripts/bench_harness.py", "--repeats", str(args.repeats)])
+        print(f"harness overhead (scripts/bench_harness.py): {done.stdout.strip().splitlines()[-1]}", flush=True)
+    if "job" not in args.skip:
+        walls = []
+        for i in range(args.job_repeats):
+            with tempfile.TemporaryDirectory() as tmp:
+                walls.append(_subprocess_s([sys.executable, "-m", "bench", "optimizer=psoga", "seed=0", "report=false",
+                                            f"hydra.sweep.dir={tmp}/sweep"])[0])
+        print(f"default job (python -m bench optimizer=psoga seed=0 report=false, synthetic, 500 evaluations, "
+              f"kernel cached): {np.median(walls):.1f} s wall (median of {len(walls)}: "
+              f"{', '.join(f'{w:.1f}' for w in walls)})", flush=True)
+    if "compile" not in args.skip:
+        with tempfile.TemporaryDirectory() as cache:
+            env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+            code = _COLD.format(repo=str(REPO), data=str(Path(args.data) / "kitti00"))
+            wall, done = _subprocess_s([sys.executable, "-c", code], env=env)
+        print(f"first-run compile (empty NUMBA_CACHE_DIR, one short run): {float(done.stdout.split()[-1]):.1f} s "
+              f"in the kernel call, {wall:.1f} s for the whole process; load average {os.getloadavg()[0]:.2f}",
+              flush=True)
     print(f"load average at end {os.getloadavg()[0]:.2f}")
+
+
+def _scaling(args, config: FilterConfig) -> None:
+    """ms per evaluation at batch 64 (default threads) against frames and features per update."""
+    n, reps = 64, max(3, args.repeats // 2)
+    cals = None
+    parts = []
+    for last in (114, 214, 414, 796):
+        seq = _kitti(args, 15, last)
+        cals = _candidates(seq.truth_calibration, n, seed=n)
+        wall, _ = _time_batch(seq, cals, config, prepare(seq, config), reps)
+        parts.append(f"{seq.n_frames} frames {1e3 * wall / n:.2f}")
+    print(f"scaling, batch {n}, ms per evaluation: " + ", ".join(parts), flush=True)
+    parts = []
+    for F in (8, 16, 24):
+        cfg = replace(config, max_update_features=F)
+        prep = prepare(seq, cfg)
+        wall, _ = _time_batch(seq, cals, cfg, prep, reps)
+        parts.append(f"<= {F} features ({prep.valid.sum(1).mean():.1f} used) {1e3 * wall / n:.2f}")
+    print(f"scaling, batch {n}, 782 frames, ms per evaluation: " + ", ".join(parts), flush=True)
 
 
 def profile(args, config: FilterConfig) -> None:
@@ -148,8 +240,12 @@ def main(argv=None) -> None:
     p.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--sequences", nargs="+", default=["sim540", "kitti540", "sim928", "kitti928"])
-    p.add_argument("--batches", type=int, nargs="+", default=[1, 8, 32, 64, 128])
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 8, 64, 256])
+    p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--job-repeats", type=int, default=3)
+    p.add_argument("--skip", nargs="*", default=[], choices=("scaling", "harness", "job", "compile"),
+                   help="speed: parts not to run")
     p.add_argument("--memory-batch", type=int, default=64)
     p.add_argument("--batch", type=int, default=64)
     p.add_argument("--set", nargs="*", help="FilterConfig overrides, key=value")
