@@ -154,6 +154,10 @@ def job_header(identity: dict, problem: Problem, optimizer_class: type | None = 
     return json.loads(json.dumps(header, default=str))  # as it reads back from disk
 
 
+def _canonical(value) -> str:
+    return json.dumps(value, sort_keys=True, default=str)
+
+
 def _flatten(node, prefix: str = "") -> dict:
     if isinstance(node, dict):
         out = {}
@@ -176,7 +180,7 @@ def header_mismatch(old: dict, new: dict) -> str | None:
     if old.get("config_hash") != new["config_hash"]:
         return "its config differs: " + (identity_differences(old.get("identity") or {}, new["identity"])
                                          or f"hash {old.get('config_hash')} != {new['config_hash']}")
-    if old.get("data") != new["data"]:
+    if _canonical(old.get("data")) != _canonical(new["data"]):  # as text: NaN != NaN in a dict compare
         return f"its data differ: {identity_differences(old.get('data') or {}, new['data'])}"
     if (old.get("code") or {}).get("sources") != new["code"]["sources"]:
         return (f"the code that asks and scores points changed (sources {(old.get('code') or {}).get('sources')} "

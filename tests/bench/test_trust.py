@@ -317,3 +317,15 @@ def test_a_problem_that_fails_to_build_records_a_failure_without_blocking_a_late
     refused = run_configured_job(cfg, tmp_path / "job")
     assert refused["status"] == "refused" and "finished record is left unchanged" in refused["error"]["message"]
     assert (tmp_path / "job" / "record.json").read_bytes() == before
+
+
+def test_data_identity_with_nan_still_matches_itself(tmp_path):
+    class NanMeta(AnalyticProblem):
+        @property
+        def identity(self):
+            return {**super().identity, "meta": {"gap_s": float("nan")}}
+
+    job = tmp_path / "job"
+    _run(job, evals=256, problem=NanMeta("sphere"))
+    _kill_after(job, 3)
+    assert _run(job, evals=256, problem=NanMeta("sphere"))["n_evals"] == 256
