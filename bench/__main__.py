@@ -20,6 +20,7 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from bench import callbacks
@@ -39,10 +40,14 @@ def _job(cfg: DictConfig) -> float | None:
     hc = HydraConfig.get()
     job_dir = Path(hc.runtime.output_dir)
     total = os.environ.get("BENCH_SWEEP_JOBS") or "?"
-    label = f"job {hc.job.num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
+    num = OmegaConf.select(hc, "job.num", default=0) or 0  # missing in hydra.mode=RUN
+    label = f"job {num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
     print(f"{label} -> {job_dir}", file=sys.stderr, flush=True)
     outcome = run_configured_job(plain(cfg), job_dir, label=label)
-    callbacks.note_outcome(Path(hc.sweep.dir), hc.job.num, label, outcome)
+    if hc.mode == RunMode.MULTIRUN:  # the sweep's callback counts outcomes
+        callbacks.note_outcome(Path(hc.sweep.dir), num, label, outcome)
+    else:  # hydra.mode=RUN: one job in this process, no sweep callback
+        callbacks.LAST_SWEEP.update(n_jobs=1, n_failed=int(outcome.get("status") != "ok"))
     return outcome.get("best_f") if outcome.get("status") == "ok" else None
 
 

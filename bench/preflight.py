@@ -59,6 +59,8 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     # The sweeper params of the primary config, read as data: composing it would need a
     # valid default for every swept group first.
     primary = OmegaConf.load(CONF_DIR / "config.yaml")
+    if "hydra.mode=RUN" in overrides:  # one job: Hydra ignores the sweeper's params
+        return [app_overrides]
     params = OmegaConf.select(primary, "hydra.sweeper.params") or {}
     sweep_params = [f"{k}={v}" for k, v in params.items()]
     parsed = parser.parse_overrides(sweep_params + app_overrides)

@@ -169,3 +169,11 @@ def test_the_probe_sees_a_folder_that_refuses_writes(tmp_path):
             assert not _writable(tmp_path)
         finally:
             tmp_path.chmod(0o755)
+
+
+def test_a_single_job_in_hydra_run_mode(tmp_path):
+    proc = bench("problem=sphere", "optimizer=random", "budget.evals=32", "hydra.mode=RUN",
+                 f"hydra.run.dir={tmp_path / 'one'}", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "job 1/1 sphere/random/seed0" in proc.stderr
+    assert {"record.json", "job.json", "evals.jsonl"} <= {p.name for p in (tmp_path / "one").iterdir()}
