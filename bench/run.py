@@ -311,7 +311,11 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
                               "resume from its log")
         optimizer = make_optimizer()
         entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
-        stop_reason = _replay(optimizer, entries, evals_path, budget, state)  # RunError: nothing changed
+        if entries:
+            print(f"{label}: resuming: replaying {len(entries)} logged batches through the optimiser",
+                  file=sys.stderr, flush=True)
+        stop_reason = _replay(optimizer, entries, evals_path, budget, state,  # RunError: nothing changed
+                              tell_every_s=max(0.5, min(float(progress_every_s), 5.0)), label=label)
         evals_log = EvalLog(job_dir)
         if file_bytes > complete_bytes:
             log.warning("%s: dropping a torn last line of %s (%d bytes)", label, evals_path, file_bytes - complete_bytes)
@@ -450,14 +454,20 @@ def _account(state: dict, entry: dict) -> None:
         state["best_metrics"] = {k: float(np.asarray(v, float)[i]) for k, v in entry["metrics"].items()}
 
 
-def _replay(optimizer, entries: list[dict], path: Path, budget: Budget, state: dict) -> str | None:
+def _replay(optimizer, entries: list[dict], path: Path, budget: Budget, state: dict,
+            tell_every_s: float = 5.0, label: str = "job") -> str | None:
     """Feed a killed job's logged batches back to a fresh optimiser; the stop reason if it had ended.
 
     Each batch must be what the optimiser asks again, and the job's budget and the optimiser's
     stop are applied before each one exactly as the run loop applies them: a batch the job
-    would not have evaluated is refused (RunError; nothing written).
+    would not have evaluated is refused (RunError; nothing written). A long replay says how far
+    it got every ``tell_every_s`` seconds (on stderr).
     """
+    last_said = time.perf_counter()
     for i, entry in enumerate(entries):
+        if time.perf_counter() - last_said >= tell_every_s:
+            last_said = time.perf_counter()
+            print(f"{label}: replayed {i}/{len(entries)} batches", file=sys.stderr, flush=True)
         reason = _budget_stop(budget, state, state["offset_s"]) or _optimizer_stop(optimizer)
         if reason is not None:
             raise RunError(f"{path}: the log holds {len(entries)} batches ({sum(len(e['f']) for e in entries)} evals) "

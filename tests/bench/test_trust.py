@@ -329,3 +329,22 @@ def test_data_identity_with_nan_still_matches_itself(tmp_path):
     _run(job, evals=256, problem=NanMeta("sphere"))
     _kill_after(job, 3)
     assert _run(job, evals=256, problem=NanMeta("sphere"))["n_evals"] == 256
+
+
+class _SlowToAsk(RandomSearch):
+    def _ask(self):
+        time.sleep(0.3)
+        return super()._ask()
+
+
+def test_a_long_replay_says_how_far_it_got(tmp_path, capsys):
+    job = tmp_path / "job"
+    problem = AnalyticProblem("sphere")
+    run_job(problem, _make(problem, cls=_SlowToAsk), Budget(evals=256), job, _identity(evals=256), progress=False)
+    _kill_after(job, 6)
+    capsys.readouterr()
+    run_job(problem, _make(problem, cls=_SlowToAsk), Budget(evals=256), job, _identity(evals=256), progress=False,
+            progress_every_s=0.5, label="job 1/1 slow")
+    err = capsys.readouterr().err
+    assert "job 1/1 slow: resuming: replaying 6 logged batches" in err
+    assert "job 1/1 slow: replayed " in err  # 6 x 0.3 s: said at least once while replaying
