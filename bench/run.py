@@ -258,15 +258,13 @@ def run_job(
 
 
 def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | None]:
-    """(the finished record to return, or None to run; a note when the old record.json was unreadable)."""
+    """(the finished record to return, or None to run; why the old record.json is unreadable, or None)."""
     try:
         previous = read_record(job_dir)
         if previous is not None and not {"job_key", "status"} <= set(previous):
             raise RecordError(f"{job_dir / RECORD}: corrupt record (missing job_key or status)")
     except RecordError as err:
-        kept = job_dir / f"{RECORD}.corrupt"
-        os.replace(job_dir / RECORD, kept)
-        return None, f"{err}; kept as {kept.name}"
+        return None, str(err)  # set aside, and the job failed with it, once its log is known to be ours
     if previous is None or previous.get("status") != "ok":
         return None, None  # never finished, or failed: run (resuming its log) again
     if previous.get("job_key") != header["job_key"]:
@@ -307,8 +305,10 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
     evals_log, bar = None, None
     try:
         if corrupt_note:
-            raise RecordError(f"the previous record was unreadable ({corrupt_note}); run the job again to "
-                              "resume from its log")
+            kept = job_dir / f"{RECORD}.corrupt"
+            os.replace(job_dir / RECORD, kept)
+            raise RecordError(f"the previous record was unreadable ({corrupt_note}; kept as {kept.name}); run "
+                              "the job again to resume from its log")
         optimizer = make_optimizer()
         entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
         if entries:
