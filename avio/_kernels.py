@@ -11,9 +11,9 @@ does not notice edits to functions of other modules called from a cached one: af
 avio/measurement.py, avio/outliers.py, avio/_linalg.py or avio/imu_propagation.py, delete
 avio/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
 numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
-filter runs alone on one thread (:func:`run_filters` cuts the batch into contiguous ranges, one
-per thread, with ``prange``; :func:`_run_range` runs a range's filters one after the other with
-one set of workspaces, allocated once, so nothing is allocated per frame), so a batch gives the
+filter runs alone on one thread (:func:`run_filters` runs a contiguous range of the batch, one
+filter after the other, with one set of workspaces allocated once, so nothing is allocated per
+frame; it releases the GIL and avio/filter.py runs one range per thread), so a batch gives the
 same numbers as single runs whatever the thread count.
 
 Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (filter.py).
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from avio._linalg import matmul, so3_exp, solve
+from avio._linalg import copy1, copy2, matmul, so3_exp, solve
 from avio.imu_propagation import propagate_one, propagate_workspace
 from avio.measurement import feature_residuals, rot_t
 from avio.outliers import (_cholesky, feature_innovations_into, innovations_workspace, mahalanobis_gate,
@@ -100,7 +100,9 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
         if a == 2:
             matmul(M, Jsh, G[12:18, 0:15])
         else:
-            G[6 * a:6 * a + 6, 15 + 6 * a:21 + 6 * a] = M
+            for i in range(6):
+                for j in range(6):
+                    G[6 * a + i, 15 + 6 * a + j] = M[i, j]
     for i in range(3):
         for j in range(3):
             R12[i, j] = Rc[0, 0, i] * Rc[1, 0, j] + Rc[0, 1, i] * Rc[1, 1, j] + Rc[0, 2, i] * Rc[1, 2, j]
@@ -159,7 +161,7 @@ def measure_all(R, p, v, cp, cR, omega, td, fx, fy, cx, cy, Rci, pic, uv):
 def _rotate(Rm, dtheta, E, T):
     so3_exp(dtheta[0], dtheta[1], dtheta[2], E)
     matmul(Rm, E, T)
-    Rm[:] = T
+    copy2(Rm, T)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -333,7 +335,8 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         for b in range(a):
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
-    inl[:] = ok
+    for f in range(F):
+        inl[f] = ok[f]
     feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, oLp, oS, oL, oy)
     # The score (avio/objectives.py): every valid feature's own innovation likelihood, its
     # squared Mahalanobis distance capped at the gate, whatever the update does with it.
@@ -351,7 +354,8 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         one_point_ransac_into(r, HP, z, sd, ok, ransac_threshold_sigma, inl, oY, omoved, oinlier, ocount)
     if mode == MODE_GATE or mode == MODE_BOTH:
         mahalanobis_gate(r, z, inl, chi2_threshold, gate)
-        inl[:] = gate
+        for f in range(F):
+            inl[f] = gate[f]
     # Information form over the inliers: A = Jw^T Jw, beta = Jw^T rw with the whitened
     # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T).
     A[:] = 0.0
@@ -469,10 +473,10 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
     k-1 down, clone the current exposure-time pose (:func:`shifted_pose`); its covariance rows
     are ``J P[0:15]`` (R3, p3, J, E, NR (6, 27): scratch)."""
     shifted_pose(R, p, v, omega, td, R3, p3, J, E)
-    cp[0] = cp[1]
-    cR[0] = cR[1]
-    cp[1] = p3
-    cR[1] = R3
+    copy1(cp[0], cp[1])
+    copy2(cR[0], cR[1])
+    copy1(cp[1], p3)
+    copy2(cR[1], R3)
     for a in range(6):
         for b in range(27):
             NR[a, b] = 0.0
@@ -561,12 +565,12 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 
-@numba.njit(cache=True, error_model="numpy", parallel=True)
-def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
                 valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
                 mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
                 out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                out_nll, out_slots, n_chunks):
+                out_nll, out_slots):
     """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order: prediction
     (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
@@ -577,27 +581,12 @@ def run_filters(R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, g
     innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
     contribution and residual slots (:func:`update`; zero where no trifocal update ran).
     The biases start at ba0, bg0 (3,), the prior means.
-    The batch is cut into ``n_chunks`` contiguous ranges run in parallel (numba ``prange``,
-    one thread per range, avio/filter.py: set_threads); each filter is computed by one thread
-    with the same operations as alone, so the bits do not depend on the batch or thread count.
+    This call runs filters lo..hi-1 (of the n of the out_* arrays), one after the other, with one
+    set of workspaces allocated here (nothing is allocated in the frame loop); it releases the
+    GIL, so avio/filter.py runs contiguous ranges of a batch on several threads at once (each
+    filter on one thread, with the same operations as alone: the bits do not depend on the
+    batch or thread count).
     """
-    n = fx.shape[0]
-    for c in numba.prange(n_chunks):
-        _run_range(c * n // n_chunks, (c + 1) * n // n_chunks, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
-                   valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
-                   mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
-                   out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                   out_nll, out_slots)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _run_range(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
-                valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
-                mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
-                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                out_nll, out_slots):
-    """Filters lo..hi-1 of :func:`run_filters`, one after the other, with one set of workspaces
-    (allocated here, once per range; nothing is allocated in the frame loop)."""
     N, F = T_s.shape[0], uv.shape[1]
     ws, mws, pws, nws = update_workspace(F), measure_workspace(), propagate_workspace(), noise_workspace(F)
     ows = outlier_workspace(F)
@@ -611,12 +600,12 @@ def _run_range(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg,
     ba_s, bg_s = np.empty(3), np.empty(3)
     sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))
     for i in range(lo, hi):
-        R[:] = R0
-        p[:] = p0
-        v[:] = v0
-        P[:] = P0
-        ba[:] = ba0
-        bg[:] = bg0
+        copy2(R, R0)
+        copy1(p, p0)
+        copy1(v, v0)
+        copy2(P, P0)
+        copy1(ba, ba0)
+        copy1(bg, bg0)
         cp[:] = 0.0
         cR[:] = 0.0
         for a in range(3):
@@ -632,16 +621,16 @@ def _run_range(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg,
         div_at[i] = 0 if frozen[i] else -1
         k_stop = 0 if frozen[i] else N
         for k in range(k_stop):
-            ba_s[:] = ba
-            bg_s[:] = bg
+            copy1(ba_s, ba)
+            copy1(bg_s, bg)
             if k > 0:
                 propagate_one(R, v, p, ba, bg, g, dR[k], dv[k], dp[k], S[k], SS[k], Vbg[k], Pbg[k], T_s[k],
                               R_new, v_new, p_new, Phi, pws)
                 propagate_covariance(P, Phi, Qd[k], Tq, U)
             else:
-                R_new[:] = R
-                v_new[:] = v
-                p_new[:] = p
+                copy2(R_new, R)
+                copy1(v_new, v)
+                copy1(p_new, p)
             for a in range(3):
                 omega[a] = gyro_frame[k, a] - bg[a]
             j = triplet_of_frame[k]
@@ -665,25 +654,25 @@ def _run_range(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg,
                 out_dof[i, k] = 0
                 out_nll[i, k] = 0.0
                 out_slots[i, k] = 0
-                ba[:] = ba_s
-                bg[:] = bg_s
+                copy1(ba, ba_s)
+                copy1(bg, bg_s)
                 k_stop = k
                 break
-            R[:] = R_new
-            p[:] = p_new
-            v[:] = v_new
-            out_p[i, k] = p
-            out_R[i, k] = R
-            out_v[i, k] = v
-            out_ba[i, k] = ba
-            out_bg[i, k] = bg
+            copy2(R, R_new)
+            copy1(p, p_new)
+            copy1(v, v_new)
+            copy1(out_p[i, k], p)
+            copy2(out_R[i, k], R)
+            copy1(out_v[i, k], v)
+            copy1(out_ba[i, k], ba)
+            copy1(out_bg[i, k], bg)
             for a in range(15):
                 out_sig[i, k, a] = np.sqrt(abs(P[a, a]))
         # From the divergence on: the last good state (biases included), the initial sigmas.
         for k in range(k_stop, N):
-            out_p[i, k] = p
-            out_R[i, k] = R
-            out_v[i, k] = v
-            out_ba[i, k] = ba
-            out_bg[i, k] = bg
-            out_sig[i, k] = sig0
+            copy1(out_p[i, k], p)
+            copy2(out_R[i, k], R)
+            copy1(out_v[i, k], v)
+            copy1(out_ba[i, k], ba)
+            copy1(out_bg[i, k], bg)
+            copy1(out_sig[i, k], sig0)

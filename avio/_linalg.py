@@ -34,6 +34,22 @@ def so3_exp(w0, w1, w2, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def copy1(dst, src):
+    """dst[:] = src for 1-D arrays of equal length (an explicit loop: numba's array-to-array
+    slice assignment compiles a shape check and its error message, ~8 s of the first compile)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def copy2(dst, src):
+    """dst[:, :] = src for 2-D arrays of equal shape (as :func:`copy1`)."""
+    for i in range(dst.shape[0]):
+        for j in range(dst.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def matmul(A, B, out):
     """out = A @ B for small 2-D arrays (i-k-j order: the inner loop runs over contiguous rows)."""
     for i in range(A.shape[0]):

@@ -7,8 +7,8 @@ preintegration, feature selection, process noise) is numpy, once per sequence
 (avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
 the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
 (pure numpy reached ~20 evaluations/s at batch 64, see scripts/bench_filter.py for the kernel's).
-The batch is split over threads (:func:`set_threads`; numba ``prange`` over contiguous ranges of
-calibrations) and each filter is computed by one thread with the same operations as alone, so a
+The batch is split over threads (:func:`set_threads`: contiguous ranges of calibrations, the
+kernel releases the GIL) and each filter is computed by one thread with the same operations as alone, so a
 batch gives the same bits as single runs whatever its size and the thread count; no fastmath,
 so results are deterministic. The first call of a process with a cold numba cache compiles the
 kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
@@ -73,6 +73,7 @@ import os
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -94,22 +95,23 @@ _THREADS: int | None = None  # set_threads(); None: the default rule
 
 
 def default_threads() -> int:
-    """Threads of the filter kernel when :func:`set_threads` was not called: numba's
-    NUMBA_NUM_THREADS (the machine's cores unless the environment says otherwise). joblib's
-    loky workers (the Hydra joblib launcher) get ``NUMBA_NUM_THREADS = cores // n_jobs`` from
-    joblib, so two workers on two cores run one thread each and do not oversubscribe."""
-    return int(numba.config.NUMBA_NUM_THREADS)
+    """Threads of the filter when :func:`set_threads` was not called: numba's NUMBA_NUM_THREADS,
+    i.e. the machine's cores unless the environment sets it. joblib's loky workers (the Hydra
+    joblib launcher) get ``NUMBA_NUM_THREADS = cores // n_jobs`` from joblib, so two workers on
+    two cores run one thread each and do not oversubscribe; at most ``os.cpu_count()``."""
+    return max(1, min(int(numba.config.NUMBA_NUM_THREADS), os.cpu_count() or 1))
 
 
 def set_threads(n: int | None = None) -> int:
-    """Threads the filter kernel splits a batch over (each filter on one thread, so results do
-    not depend on it); None restores :func:`default_threads`. Rule for launchers running
-    several filter processes on one machine: ``threads = max(1, cores // processes)``. At most
-    NUMBA_NUM_THREADS (numba's pool is sized at import); returns the count in effect."""
+    """Threads :func:`run` splits a batch over (contiguous ranges of calibrations, each filter on
+    one thread, so results do not depend on it); None restores :func:`default_threads`. Rule
+    for launchers running several filter processes on one machine:
+    ``threads = max(1, cores // processes)``. At most ``os.cpu_count()``; returns the count in
+    effect."""
     global _THREADS
     if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
         raise FilterError(f"set_threads: n must be an integer >= 1 or None, got {n!r}")
-    _THREADS = None if n is None else min(int(n), int(numba.config.NUMBA_NUM_THREADS))
+    _THREADS = None if n is None else min(int(n), os.cpu_count() or 1)
     return threads()
 
 
@@ -141,8 +143,9 @@ def _announce_compile():
         _kernel_loaded = True
         yield
         return
-    print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in "
-          f"{os.path.dirname(_kernels.__file__)}/__pycache__ or NUMBA_CACHE_DIR)", file=sys.stderr, flush=True)
+    where = numba.config.CACHE_DIR or os.path.join(os.path.dirname(_kernels.__file__), "__pycache__")
+    print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in {where})",
+          file=sys.stderr, flush=True)
     done = threading.Event()
     t0 = time.perf_counter()
 
@@ -477,19 +480,27 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
          cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
     out_nis, out_ldS, out_nll = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
     out_dof, out_slots = np.empty((n, N), np.int64), np.empty((n, N), np.int64)
-    n_threads = min(threads(), n)
-    numba.set_num_threads(max(1, min(threads(), int(numba.config.NUMBA_NUM_THREADS))))
-    # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
-    # kernel tests for and drops; the floating-point warnings carry no information.
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
-        _kernels.run_filters(
-            st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
+    args = (st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
             pre.dp, pre.S, pre.SS,
             pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
             prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, float(c.pixel_sigma_px),
             float(c.max_transfer_gain), c.min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
             c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
             out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
-            out_slots, n_threads)
+            out_slots)
+    # The kernel releases the GIL: contiguous ranges of the batch run on threads at once, each
+    # filter on one thread (numba prange was tried: +41 s, +31 %, on the first compile).
+    n_threads = min(threads(), n)
+    bounds = [i * n // n_threads for i in range(n_threads + 1)]
+    # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
+    # kernel tests for and drops; the floating-point warnings carry no information.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
+        if n_threads == 1:
+            _kernels.run_filters(0, n, *args)
+        else:
+            with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
+                jobs = [pool.submit(_kernels.run_filters, lo, hi, *args) for lo, hi in zip(bounds[:-1], bounds[1:])]
+                for job in jobs:
+                    job.result()
     return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
                         out_nis, out_ldS, out_dof, out_nll, out_slots, meta={"config": config})
