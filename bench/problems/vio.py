@@ -19,7 +19,8 @@ A filter that diverges gets ``divergence_penalty_m * (2 - k_div / N)`` (in the o
 units): finite, worse than any regular value, worse the earlier it diverged.
 
 Beside f, every evaluation reports, uncharged: both objectives, the trajectory errors, the
-filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
+drift (avio.metrics.drift_metrics: KITTI t_rel/r_rel, per-metre drift, the largest one-frame
+jump), the filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
 reference such as Kalibr) when the source knows one (avio.calibration_error).
 """
 
@@ -35,7 +36,7 @@ import numpy as np
 
 from avio.calibration_error import calibration_errors
 from avio.filter import FilterConfig, FilterError, FilterResult, prepare, run
-from avio.metrics import pose_errors
+from avio.metrics import drift_metrics, pose_errors
 from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse
 from avio.sequence import Calibration, Sequence
 from bench.calibration_space import make_calibration_space
@@ -301,6 +302,10 @@ class VioProblem:
         metrics = {"diverged": np.any([r.diverged for r in results], axis=0).astype(float),
                    "position_rmse_m": rmse, "innovation_nll": nll, "nis_per_dof": nis_per_dof,
                    "velocity_rmse_mps": pooled("velocity_rmse"), "attitude_rmse_deg": pooled("attitude_rmse")}
+        drift = [drift_metrics(r.p_world_imu_m, r.R_world_imu, s.truth) for r, s in zip(results, drives)]
+        for key in drift[0]:  # the drives' mean drift; the largest jump of any drive
+            values = np.stack([d[key] for d in drift])
+            metrics[key] = values.max(axis=0) if key == "max_jump_m" else values.mean(axis=0)
         return f, metrics
 
     def evaluate(self, X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
