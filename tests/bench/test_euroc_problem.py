@@ -46,6 +46,18 @@ def test_a_batch_reports_errors_against_kalibr(problem):
 
 
 @pytest.mark.data
+def test_options_of_every_vio_problem_apply(shared_data):
+    params = {**_yaml_params(), "data_dir": str(shared_data), "drives": [[10.0, 20.0], [20.0, 30.0]],
+              "holdout": None, "with_time_offset": True, "fixed": ["dz"], "tie_focal": True,
+              "objective": "innovation_nll"}
+    problem = get("euroc")(**params)
+    assert "td" in problem.space.names and "dz" not in problem.space.names and "fy" not in problem.space.names
+    assert [s.n_frames for s in problem.drives] == [201, 201]
+    f, metrics = problem.evaluate(problem.truth[None])
+    assert np.isfinite(f[0]) and metrics["time_offset_error_ms"][0] == 0.0
+
+
+@pytest.mark.data
 @pytest.mark.parametrize("change, message", [
     ({"holdout": [20.0, 35.0]}, "holdout: .*outside the data"),
     ({"drives": [[10.0, 5.0]]}, r"drives\[0\] = \[10.0, 5.0\]: need finite t_first_s < t_last_s"),
