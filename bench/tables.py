@@ -156,6 +156,17 @@ def _outside_note(art: Artifacts) -> str:
     return f" The truth lies OUTSIDE the search bounds for: {', '.join(outside)}." if outside else ""
 
 
+def _frozen_note(problem_config: dict) -> str:
+    """Which variables the optimisers did not calibrate (``fixed``, ``tie_focal``)."""
+    params = problem_config.get("params") or {}
+    parts = []
+    if params.get("fixed"):
+        parts.append(f"frozen at the reference, not calibrated: {', '.join(params['fixed'])}")
+    if params.get("tie_focal"):
+        parts.append("fy tied to fx (not a variable)")
+    return f" Variables {'; '.join(parts)}." if parts else ""
+
+
 def _drive_caption(art: Artifacts, table: str, which: str, paper: str | None) -> str:
     drive = art.manifest["drives"][which]
     label = "calibration drive" if which == "calibration" else "held-out drive"
@@ -224,10 +235,12 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
         beside = ("PSO-GA, reference and bounds (paper): the paper's Table 1, real KITTI" if table1_applies(name)
                   else "the paper's Table 1 is for another camera and is not shown")
         written += _write(values, folder, "table1", f"Table 1 ({name}): calibration values in the paper's "
-                          f"variables ({data_label(name)}; {beside})." + _outside_note(art), True)
+                          f"variables ({data_label(name)}; {beside})." + _frozen_note(config) + _outside_note(art),
+                          True)
         if errors is not None:
             written += _write(errors, folder, "table1_errors",
-                              f"Table 1b ({name}): calibration errors against the truth." + _outside_note(art), True)
+                              f"Table 1b ({name}): calibration errors against the truth." + _frozen_note(config)
+                              + _outside_note(art), True)
         for which, table in (("calibration", "table2"), ("holdout", "table3")):
             if which in art.drives:
                 paper = paper_drive(config, which)

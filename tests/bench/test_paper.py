@@ -25,3 +25,11 @@ def test_table1_and_labels():
     assert table1_applies("kitti00") and table1_applies("synthetic") and not table1_applies("euroc")
     assert "simulated camera" in data_label("kitti00") and "simulated IMU" in data_label("synthetic")
     assert PAPER_TABLE23[("540m", "position")]["AVIO"] == (2.0736, 1.7936, 0.8551)
+
+
+def test_table1_says_which_variables_were_frozen_or_tied():
+    from bench.tables import _frozen_note
+
+    note = _frozen_note({"name": "synthetic", "params": {"fixed": ["dy", "dz"], "tie_focal": True}})
+    assert "frozen at the reference, not calibrated: dy, dz" in note and "fy tied to fx" in note
+    assert _frozen_note({"name": "synthetic", "params": {"fixed": [], "tie_focal": False}}) == ""
