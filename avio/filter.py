@@ -123,6 +123,7 @@ def threads() -> int:
 #: Measured first-run compile time of the kernel on the 2-core development machine, seconds
 #: (scripts/bench_filter.py speed prints it), quoted in the message before a cold compile.
 COMPILE_ESTIMATE_S = 40
+_HEARTBEAT_S = 10.0  # seconds between the "still compiling" lines
 _kernel_loaded = False
 
 
@@ -150,7 +151,7 @@ def _announce_compile():
     t0 = time.perf_counter()
 
     def heartbeat():
-        while not done.wait(10.0):
+        while not done.wait(_HEARTBEAT_S):
             print(f"  still compiling the VIO filter ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
 
     beat = threading.Thread(target=heartbeat, name="avio-compile-heartbeat", daemon=True)

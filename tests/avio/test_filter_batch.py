@@ -137,3 +137,31 @@ def test_same_bits_as_the_serial_reference_kernel_on_kitti00(monkeypatch, shared
         got = run(seq, cal, cfg, prep)
         _assert_same_bits(got, want, f"kitti00 15-796, {cfg.divergence_max_variance}")
     assert np.all(got.diverged_at_frame > 0) | np.isnan(cal.fx_px).any()
+
+
+def test_a_cold_compile_is_announced_with_a_heartbeat_and_its_duration(monkeypatch, capsys):
+    import time
+
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: False)
+    monkeypatch.setattr(avio_filter, "_HEARTBEAT_S", 0.02)
+    with avio_filter._announce_compile():
+        time.sleep(0.1)
+    err = capsys.readouterr().err
+    assert f"compiling the VIO filter (first run only, ~{avio_filter.COMPILE_ESTIMATE_S} s" in err
+    assert "still compiling the VIO filter" in err
+    assert "compiled the VIO filter in" in err
+    # Once loaded (or with a warm cache), nothing is printed.
+    with avio_filter._announce_compile():
+        pass
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: True)
+    with avio_filter._announce_compile():
+        pass
+    assert capsys.readouterr().err == ""
+
+
+def test_the_kernel_cache_is_recognised_once_compiled():
+    seq = make_circle_sequence(8, seed=0)
+    run(seq, seq.truth_calibration, FilterConfig())
+    assert avio_filter._kernel_cached() is True
