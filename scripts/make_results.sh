@@ -1,23 +1,29 @@
 #!/usr/bin/env bash
-# Rebuilds the committed results/: one sweep per problem (its report, Tables 1-3 and figures are
-# built by the sweep itself, into results/<problem>/report/), then results/README.md's provenance.
-#   bash scripts/make_results.sh [synthetic|kitti00|kitti00_tracks ...]
+# Rebuilds the committed results/: one sweep per entry (its report, Tables 1-3 and figures are
+# built by the sweep itself, into results/<name>/report/), then results/.provenance.
+#   bash scripts/make_results.sh [synthetic|kitti00|kitti00_tracks|euroc|kitti00_tracks_nll|euroc_nll ...]
+# The identifiability study has its own script (scripts/make_identifiability.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-problems=("${@:-synthetic kitti00 kitti00_tracks}")
-common=(optimizer=psoga,pso,ga,cmaes,tpe,random hydra/launcher=joblib hydra.launcher.n_jobs=2)
-for problem in ${problems[@]}; do
-  case "$problem" in
-    synthetic|kitti00) args=(seed='range(5)' budget.evals=600) ;;
-    kitti00_tracks)    args=(seed='range(3)' budget.evals=300) ;;
-    *) echo "unknown problem $problem" >&2; exit 2 ;;
+names=("${@:-synthetic kitti00 kitti00_tracks euroc kitti00_tracks_nll euroc_nll}")
+launcher=(hydra/launcher=joblib hydra.launcher.n_jobs=2)
+all=optimizer=psoga,pso,ga,cmaes,tpe,random
+for name in ${names[@]}; do
+  case "$name" in
+    synthetic|kitti00|euroc) args=(problem="$name" "$all" seed='range(5)' budget.evals=600) ;;
+    kitti00_tracks)          args=(problem="$name" "$all" seed='range(3)' budget.evals=300) ;;
+    kitti00_tracks_nll)      args=(problem=kitti00_tracks optimizer=cmaes,pso seed='range(3)' budget.evals=300
+                                   problem.params.objective=innovation_nll) ;;
+    euroc_nll)               args=(problem=euroc optimizer=cmaes,pso seed='range(5)' budget.evals=600
+                                   problem.params.objective=innovation_nll) ;;
+    *) echo "unknown results entry $name" >&2; exit 2 ;;
   esac
-  rm -rf "results/$problem"
+  rm -rf "results/$name"
   start=$(date -u +%s)
-  python -m bench problem="$problem" "${common[@]}" "${args[@]}" hydra.sweep.dir="results/$problem"
+  python -m bench "${args[@]}" "${launcher[@]}" hydra.sweep.dir="results/$name"
   end=$(date -u +%s)
   {
-    echo "- \`$problem\`: \`python -m bench problem=$problem ${common[*]} $(printf '%q ' "${args[@]}")hydra.sweep.dir=results/$problem\`"
+    echo "- \`$name\`: \`python -m bench $(printf '%q ' "${args[@]}" "${launcher[@]}")hydra.sweep.dir=results/$name\`"
     echo "  — $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $((end - start)) s"
   } >> results/.provenance
 done
