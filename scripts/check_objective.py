@@ -9,6 +9,9 @@
    updates and the median position NEES (per-axis, with the filter's own sigmas), per seed.
 3. Truth against the reference over ``--seeds`` data seeds, under each objective.
 4. When ``results/identifiability/summary.csv`` exists: the identifiability study's table.
+5. When the committed all-real sweeps exist (results/kitti00_tracks, results/kitti00_tracks_nll):
+   how far each optimiser's best rotation lies from the rectified KITTI extrinsic (the local
+   space's rotation vector is the offset from it), under each objective.
 """
 
 from __future__ import annotations
@@ -94,6 +97,25 @@ def identifiability_summary() -> None:
     print(pd.read_csv(path).to_string(index=False))
 
 
+def real_track_rotations() -> None:
+    import json
+
+    print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
+    for name in ("kitti00_tracks", "kitti00_tracks_nll"):
+        records = [json.loads(p.read_text()) for p in sorted((ROOT / "results" / name).glob("*/*/seed*/record.json"))]
+        records = [r for r in records if r.get("status") == "ok"]
+        if not records:
+            print(f"   results/{name}: no records")
+            continue
+        by_opt: dict[str, list[float]] = {}
+        for r in records:
+            x = dict(zip(r["space"]["names"], r["best_x"]))
+            by_opt.setdefault(r["optimizer"], []).append(float(np.linalg.norm([x["rx"], x["ry"], x["rz"]])))
+        objective = records[0]["config"]["problem"]["params"]["objective"]
+        for opt, angles in sorted(by_opt.items()):
+            print(f"   {objective:>14} {opt:>7}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
@@ -103,6 +125,7 @@ def main() -> None:
     perfect_data(args.profile_points)
     consistency_and_ranking(args.seeds)
     identifiability_summary()
+    real_track_rotations()
     print(f"({time.perf_counter() - start:.0f} s)")
 
 
