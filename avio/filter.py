@@ -490,9 +490,11 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
             out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
             out_slots)
     # The kernel releases the GIL: contiguous ranges of the batch run on threads at once, each
-    # filter on one thread (numba prange was tried: +41 s, +31 %, on the first compile).
+    # filter on one thread (numba prange was tried: +41 s, +31 %, on the first compile). Four
+    # ranges per thread, taken as threads come free: filters that diverge early stop early.
     n_threads = min(threads(), n)
-    bounds = [i * n // n_threads for i in range(n_threads + 1)]
+    n_ranges = min(n, 4 * n_threads) if n_threads > 1 else 1
+    bounds = [i * n // n_ranges for i in range(n_ranges + 1)]
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():

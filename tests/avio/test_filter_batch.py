@@ -165,3 +165,12 @@ def test_the_kernel_cache_is_recognised_once_compiled():
     seq = make_circle_sequence(8, seed=0)
     run(seq, seq.truth_calibration, FilterConfig())
     assert avio_filter._kernel_cached() is True
+
+
+def test_joblib_workers_default_to_cores_over_workers():
+    """The rule that keeps two joblib workers on two cores from oversubscribing: loky sets
+    NUMBA_NUM_THREADS = cores // n_jobs in its workers and the filter's default follows it."""
+    from joblib import Parallel, delayed
+
+    got = Parallel(n_jobs=2)(delayed(avio_filter.default_threads)() for _ in range(2))
+    assert got == [max(1, os.cpu_count() // 2)] * 2
