@@ -427,8 +427,9 @@ def load_euroc(
     ``max_imu_gap_s``); ground truth at each frame in the window's world (module doc); real
     tracks in pixels over consecutive triplets, at most ``max_features`` per triplet (None: all)
     chosen by bucketing with ``seed``; reference calibration = Kalibr cam0 and truth calibration
-    None, or with ``nominal_perturbation`` reference = Kalibr + it and truth = Kalibr; image size and IMU noise from the Kalibr files; initial biases
-    by ``gyro_bias_init`` / ``accel_bias_init`` (module doc). ``meta["content_hash"]`` identifies
+    None, or with ``nominal_perturbation`` reference = Kalibr + it and truth = Kalibr; image
+    size and IMU noise from the Kalibr files; initial biases by ``gyro_bias_init`` /
+    ``accel_bias_init`` (module doc). ``meta["content_hash"]`` identifies
     everything a filter run reads. Raises EurocDataError naming the file and line, the key or the
     window, before building.
     """

@@ -4,7 +4,9 @@ Prints what the loader read (clocks, calibration, noise, biases, tracks), the fe
 every triplet, and for each window and initial-bias choice the filter's position RMSE,
 attitude RMSE and drift per metre of path at the Kalibr calibration, over several feature
 draws (``FilterConfig.bucket_seed``: which ~16 of the ~23 features a frame uses moves the
-RMSE by 0.01-0.03 m, so one draw means little).
+RMSE by 0.01-0.03 m, so one draw means little). Drift: ``drift m/m`` is
+avio.metrics.drift_metrics (mean translation error over 1 m path segments, per metre);
+``end err/path %`` the final position error over the path length.
 
     python scripts/check_euroc.py [--data-dir DIR] [--seeds 0 1 2 3 4] [--min-parallax 0.005]
         [--imu-variance-ratio 1e6]
@@ -88,9 +90,9 @@ def filter_figures(data_dir, seeds: list[int], base: FilterConfig, windows=WINDO
                 drift.append(drift_metrics(result.p_world_imu_m, result.R_world_imu, seq.truth)["drift_m_per_m"][0])
                 div += int(result.diverged[0])
             fmt = lambda v, d: f"{np.median(v):.{d}f} [{np.min(v):.{d}f}, {np.max(v):.{d}f}]"  # noqa: E731
+            drift_m_per_m = np.nanmedian(drift) if np.isfinite(drift).any() else np.nan
             print(f"{t_a:4.0f}-{t_b:<4.0f} {init:>13} {seq.path_length_m():7.2f} {fmt(f, 3):>22} "
-                  f"{fmt(att, 2):>20} {np.median(end):16.2f} {np.nanmedian(drift) if np.isfinite(drift).any() else np.nan:10.4f} "
-                  f"{div:>5}/{len(seeds)}")
+                  f"{fmt(att, 2):>20} {np.median(end):16.2f} {drift_m_per_m:10.4f} {div:>5}/{len(seeds)}")
 
 
 def main() -> None:
