@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import sys
 import uuid
 from pathlib import Path
@@ -95,7 +96,8 @@ def main(argv: list[str] | None = None) -> None:
     code, plan = preflight_plan(argv)
     if code:
         raise SystemExit(code)
-    os.environ["BENCH_SWEEP_PID"] = str(os.getpid())
+    os.environ["BENCH_SWEEP_PID"] = str(os.getpid())  # launchers' local workers exit when it is gone
+    os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""
     callbacks.LAST_SWEEP.clear()
     saved = sys.argv

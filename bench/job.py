@@ -12,6 +12,7 @@ import logging
 import math
 import os
 import re
+import socket
 import sys
 import threading
 import time
@@ -169,6 +170,10 @@ def exit_with_the_sweep() -> None:
     """
     sweep_pid = int(os.environ.get("BENCH_SWEEP_PID") or 0)
     if not sweep_pid or sweep_pid == os.getpid() or _watching.is_set():
+        return
+    # only a direct child on the sweep's own machine (joblib's and submitit-local's workers);
+    # a SLURM job inherits the variables on another host, where that pid means nothing
+    if os.environ.get("BENCH_SWEEP_HOST") != socket.gethostname() or os.getppid() != sweep_pid:
         return
     _watching.set()
     parent = os.getppid()

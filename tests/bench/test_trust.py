@@ -348,3 +348,24 @@ def test_a_long_replay_says_how_far_it_got(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "job 1/1 slow: resuming: replaying 6 logged batches" in err
     assert "job 1/1 slow: replayed " in err  # 6 x 0.3 s: said at least once while replaying
+
+
+_WATCH = """
+import os, time
+from bench.job import exit_with_the_sweep, _watching
+exit_with_the_sweep()
+time.sleep(1.5)
+print("alive", _watching.is_set())
+"""
+
+
+@pytest.mark.parametrize("host, pid", [("another-node", "1"), ("here", "999999999")])
+def test_a_job_elsewhere_than_under_the_sweep_never_watches_it(host, pid):
+    # a SLURM job inherits BENCH_SWEEP_PID on another host: it must not take that pid for its dead parent
+    import socket
+
+    env = {**os.environ, "BENCH_SWEEP_PID": pid,
+           "BENCH_SWEEP_HOST": socket.gethostname() if host == "here" else host}
+    out = subprocess.run([sys.executable, "-c", _WATCH], env=env, capture_output=True, text=True, timeout=60,
+                         cwd=Path(__file__).resolve().parents[2])
+    assert out.returncode == 0 and out.stdout.strip() == "alive False", out.stderr
