@@ -28,10 +28,15 @@ def test_python_defaults_are_the_yaml_defaults():
 
 
 @pytest.fixture(scope="module")
-def problem(shared_data):
+def data_dir(shared_data) -> str:
     if not (shared_data / "euroc_v1_01").is_dir():
         pytest.skip(f"{shared_data / 'euroc_v1_01'} is absent")
-    return get("euroc")(**{**_yaml_params(), "data_dir": str(shared_data)})
+    return str(shared_data)
+
+
+@pytest.fixture(scope="module")
+def problem(data_dir):
+    return get("euroc")(**{**_yaml_params(), "data_dir": data_dir})
 
 
 @pytest.mark.data
@@ -46,8 +51,8 @@ def test_a_batch_reports_errors_against_kalibr(problem):
 
 
 @pytest.mark.data
-def test_options_of_every_vio_problem_apply(shared_data):
-    params = {**_yaml_params(), "data_dir": str(shared_data), "drives": [[10.0, 20.0], [20.0, 30.0]],
+def test_options_of_every_vio_problem_apply(data_dir):
+    params = {**_yaml_params(), "data_dir": data_dir, "drives": [[10.0, 20.0], [20.0, 30.0]],
               "holdout": None, "with_time_offset": True, "fixed": ["dz"], "tie_focal": True,
               "objective": "innovation_nll"}
     problem = get("euroc")(**params)
@@ -65,8 +70,8 @@ def test_options_of_every_vio_problem_apply(shared_data):
     ({"nominal_perturbation": {"d_focal_px": 1.0}}, "nominal_perturbation"),
     ({"gyro_bias_init": "mean"}, "gyro_bias_init = 'mean'"),
 ])
-def test_bad_settings_are_named_before_any_work(shared_data, change, message):
-    params = {**_yaml_params(), "data_dir": str(shared_data), **change}
+def test_bad_settings_are_named_before_any_work(data_dir, change, message):
+    params = {**_yaml_params(), "data_dir": data_dir, **change}
     with pytest.raises(ProblemError, match=message):
         get("euroc").preflight(**params)
 
