@@ -57,6 +57,8 @@ class EurocParams(VioParams):
     nominal_perturbation: nominal = Kalibr + this (avio.kitti00.CalibrationPerturbation fields).
     """
 
+    filter_defaults = {"min_parallax_m": 0.005, "stationary_imu_variance_ratio": 1.0e6}
+
     data_dir: str | None = None
     drives: tuple = ((20.0, 30.0),)
     holdout: tuple | None = (0.0, 20.0)
@@ -69,8 +71,7 @@ class EurocParams(VioParams):
         "d_rotvec_cam_rad": (0.0050, -0.0045, 0.0040),  # ~0.45 deg
         "d_p_imu_cam_m": (0.015, -0.012, 0.010),  # ~2.2 cm
         "time_offset_s": 0.0})
-    filter: dict | None = field(default_factory=lambda: {"min_parallax_m": 0.005,
-                                                         "stationary_imu_variance_ratio": 1.0e6})
+    filter: dict | None = None
 
     def _windows(self) -> dict[str, tuple[float, float]]:
         windows = {f"drives[{i}]": _window(w, f"drives[{i}]") for i, w in enumerate(self.drives)}

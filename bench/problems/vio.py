@@ -31,6 +31,7 @@ import types
 import typing
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -125,13 +126,18 @@ class VioParams:
         around the source's nominal calibration, intrinsics range from that nominal).
     with_time_offset: add the camera-IMU time offset td (s) as a variable.
     bounds: {variable: [lower, upper]} overrides.
-    filter: FilterConfig overrides (avio/filter.py), e.g. {pixel_sigma_px: 0.5}.
+    filter: FilterConfig overrides (avio/filter.py), e.g. {pixel_sigma_px: 0.5}, over the
+        source's ``filter_defaults``.
     divergence_penalty_m: objective of a diverged filter, ``penalty * (2 - k_div / N)``, in the
         objective's units (> 0).
     objective: one of avio.objectives.OBJECTIVES.
     fixed: variables frozen at the nominal (reported as frozen, not calibrated).
     tie_focal: fy = fx (square pixels; fy is then not a variable).
     """
+
+    #: FilterConfig settings the source needs (e.g. a smaller min_parallax_m for a slow rig),
+    #: merged under the user's ``filter`` overrides.
+    filter_defaults: ClassVar[dict] = {}
 
     space: str = "local"
     with_time_offset: bool = False
@@ -171,8 +177,12 @@ class VioParams:
                                "(a non-positive penalty would rank diverged filters best)")
         if self.objective not in OBJECTIVES:
             raise ProblemError(f"objective = {self.objective!r}: valid: {', '.join(OBJECTIVES)}")
-        filter_config(self.filter)
+        filter_config(self.filter_settings())
         self.space_for(self.nominal_for_checks(), self.image_size_for_checks())
+
+    def filter_settings(self) -> dict:
+        """The filter's settings: the source's defaults, then the user's overrides."""
+        return {**self.filter_defaults, **(self.filter or {})}
 
     # --- what a source provides ----------------------------------------------------------
 
@@ -249,7 +259,7 @@ class VioProblem:
         self.sequence, self.holdout = first, drives.holdout
         self.calibration_space = p.space_for(first.reference_calibration, first.image_size_px)
         self.space = self.calibration_space.space
-        self.filter_config = filter_config(p.filter)
+        self.filter_config = filter_config(p.filter_settings())
         self.divergence_penalty_m = float(p.divergence_penalty_m)
         self.objective = p.objective
         self._prepared = {id(s): prepare(s, self.filter_config) for s in self.drives}
