@@ -5,8 +5,9 @@ of 0 or a missing data file would surface only after the first jobs ran. Here th
 line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
 with Hydra's compose API, and each is checked: registered names, plugins, budget, seed,
 progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``: its search
-space, its data files), the optimiser built on the job's space with its hyperparameters (and
-asked once), the sweep folder (a writable folder), and every job folder that already exists
+space, its data files), the problem itself (built once per distinct problem config, as the
+first job would build it: a serial sweep's jobs then reuse it), the optimiser built on the job's
+space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job folder that already exists
 (it must hold this very job — same resolved config — and not be in use by another process).
 The first problem found is one clear message and exit code 2; nothing has been written.
 """
@@ -67,27 +68,25 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     return BasicSweeper.split_arguments(parsed, None)[0]
 
 
-def _space_for(cfg: dict, checked) -> Space:
-    """The job's search space: what ``Problem.preflight`` returned when it is a Space, else the
-    built problem's for problems without a preflight (cheap ones), else the paper's Table 1 box
-    (the optimiser is then checked on a space of the default dimension)."""
-    if isinstance(checked, Space):
-        return checked
-    if isinstance(getattr(checked, "space", None), Space):
-        return checked.space
-    if checked is _NO_PREFLIGHT:
-        from bench.job import build_problem
-
-        try:
-            return build_problem(cfg).space
-        except (ValueError, OSError, TypeError) as err:
-            raise ConfigError(f"problem={cfg['problem']['name']}: {err}") from None
-    from bench.problems.analytic import paper_box_space
-
-    return paper_box_space()
+_BUILT: set[str] = set()  # problem configs announced (build_problem caches the problems themselves)
 
 
-_NO_PREFLIGHT = object()
+def _built_space(cfg: dict) -> Space:
+    """The space of the job's problem, built as a job builds it (``bench.job.build_problem``, cached
+    per process, so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError."""
+    from bench.job import build_problem
+    from bench.problems import ProblemError
+
+    name = cfg["problem"]["name"]
+    key = json.dumps(cfg["problem"], sort_keys=True, default=str)
+    if key not in _BUILT:
+        _BUILT.add(key)
+        print(f"Checking: building problem {name} to check the optimisers on its space ...", file=sys.stderr,
+              flush=True)
+    try:
+        return build_problem(cfg).space
+    except (ProblemError, ValueError, OSError, TypeError, KeyError) as err:
+        raise ConfigError(f"problem={name}: {err}") from None
 
 
 def check_optimizer(cfg: dict, space: Space) -> None:
@@ -133,13 +132,21 @@ def check_job(cfg: dict) -> None:
     progress_every_s_of(cfg)
     factory = problems.get(pname)
     checker = getattr(factory, "preflight", None)
-    checked = _NO_PREFLIGHT
+    checked = None
     if checker is not None:
         try:
             checked = checker(**(cfg["problem"].get("params") or {}))
         except (ValueError, OSError, TypeError) as err:
             raise ConfigError(f"problem={pname}: {err}") from None
-    check_optimizer(cfg, _space_for(cfg, checked))
+    if isinstance(checked, Space):
+        check_optimizer(cfg, checked)
+        return
+    # the hyperparameters first on the paper's box (cheap, and most mistakes show there), then on
+    # the job's own space, which needs the problem built (its data, its bounds, fixed variables)
+    from bench.problems.analytic import paper_box_space
+
+    check_optimizer(cfg, paper_box_space())
+    check_optimizer(cfg, _built_space(cfg))
 
 
 def _check_finite(node, path: str) -> None:

@@ -53,6 +53,8 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["optimizer=cmaes", "optimizer.params.population_size=1"],
          "cmaes: population_size must be an integer >= 2, got 1"),
         (["optimizer.params.batch_size=0"], "random: batch_size must be an integer >= 1, got 0"),
+        (["problem=sphere", "problem.params.delay_s_per_batch=-1"],
+         "problem=sphere: delay_s_per_batch must be >= 0, got -1"),  # found by building it, before any job
         (["+optimizer.params.speed=3"], "optimizer=random: cannot be built as RandomSearch(lower, upper, seed=, x0=, **params)"),
         (["budget.evals=null", "budget.seconds=null"], "set budget.evals or budget.seconds"),
         (["budget.seconds=-1"], "budget.seconds must be a positive number"),
