@@ -71,7 +71,8 @@ class SweepReport(Callback):
             print(f"error: hydra.sweep.dir={sweep_dir}: cannot write there ({err})")
             raise SystemExit(2) from None
         n = os.environ.get("BENCH_SWEEP_JOBS")
-        print(f"Sweep: {n + ' jobs' if n else 'jobs'} into {sweep_dir}", file=sys.stderr, flush=True)
+        jobs = "jobs" if not n else f"{n} job" + ("" if n == "1" else "s")
+        print(f"Sweep: {jobs} into {sweep_dir}", file=sys.stderr, flush=True)
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir))
