@@ -154,16 +154,27 @@ def speed(args, config: FilterConfig) -> None:
     t0 = time.perf_counter()
     run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)
     print(f"first call (numba cache load, or compile on a cold cache): {time.perf_counter() - t0:.2f} s", flush=True)
-    per_eval = {}
+    # Thread counts interleaved run by run, so that they see the same machine load.
     for n_threads in args.threads:
         set_threads(n_threads)
-        run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)  # starts the thread pool
-        for n in args.batches:
-            wall, cpu = _time_batch(seq, _candidates(seq.truth_calibration, n, seed=n), config, prep, args.repeats)
+        run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)  # starts the threads
+    per_eval = {}
+    for n in args.batches:
+        cals = _candidates(seq.truth_calibration, n, seed=n)
+        walls, cpus = {t: [] for t in args.threads}, {t: [] for t in args.threads}
+        for _ in range(args.repeats):
+            for n_threads in args.threads:
+                set_threads(n_threads)
+                wall, cpu = _time_batch(seq, cals, config, prep, 1)
+                walls[n_threads].append(wall)
+                cpus[n_threads].append(cpu)
+        for n_threads in args.threads:
+            wall, cpu = float(np.median(walls[n_threads])), float(np.median(cpus[n_threads]))
             per_eval[n_threads, n] = wall / n
             print(f"threads {n_threads} batch {n:4d}: {n / wall:7.1f} evaluations/s ({1e3 * wall / n:6.2f} ms per "
                   f"evaluation, CPU {1e3 * cpu / n:6.2f} ms; median of {args.repeats}, batch {wall:6.3f} s)",
                   flush=True)
+        print(f"  load average {os.getloadavg()[0]:.2f}", flush=True)
     set_threads(None)
     t_lo, t_hi = min(args.threads), max(args.threads)
     if (t_lo, 1) in per_eval and (t_hi, 64) in per_eval:
