@@ -158,7 +158,8 @@ def render(title: str, bodies: dict[str, str]) -> str:
 
 LEADERBOARD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
                        "best_f_median_ci_low", "best_f_median_ci_high", "main_target", "ert_main_evals",
-                       "evals_median", "seconds_median", "p_vs_leader", "vs_leader"]
+                       "main_target_threshold", "evals_median", "seconds_median", "f_unit", "ci_level",
+                       "p_holm_vs_leader", "verdict"]
 
 
 def _leaderboard_columns(board: pd.DataFrame) -> list[str]:

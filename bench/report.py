@@ -50,7 +50,7 @@ FLOAT_FORMAT = "%.8g"
 MD_FLOAT = ".4g"
 LEADERBOARD_MD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
                           "best_f_median_ci_low", "best_f_median_ci_high", "ert_main_evals",
-                          "evals_median", "seconds_median", "p_vs_leader", "vs_leader"]
+                          "evals_median", "seconds_median", "f_unit", "p_holm_vs_leader", "verdict"]
 
 
 class ReportError(ValueError):

@@ -49,6 +49,8 @@ class AnalyticProblem:
     objective in harness-overhead benchmarks.
     """
 
+    f_unit = ""  # dimensionless
+
     def __init__(self, function: str, delay_s_per_batch: float = 0.0) -> None:
         if function not in _FUNCTIONS:
             raise ProblemError(f"unknown analytic function {function!r}; valid: {sorted(_FUNCTIONS)}")

@@ -272,6 +272,11 @@ class VioProblem:
         self.f_truth = None if self.truth is None else float(f_anchor[1])
 
     @property
+    def f_unit(self) -> str:
+        """The unit of f (records and the leaderboard carry it)."""
+        return "m" if self.objective == "position_rmse" else "nats per residual"
+
+    @property
     def reference_calibration(self) -> Calibration:
         return self.sequence.reference_calibration
 
