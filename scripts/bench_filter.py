@@ -140,6 +140,30 @@ print(f"{{time.perf_counter() - t0:.2f}}")
 """
 
 
+@numba.njit(nogil=True)
+def _burn(n):
+    s = 0.0
+    for i in range(n):
+        s += np.sin(i * 1e-3)
+    return s
+
+
+def _thread_ceiling(n=20_000_000) -> float:
+    """Speed-up of two threads over one on pure arithmetic now: what the machine's load leaves
+    for the filter's threads (2.0 on two idle cores)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    _burn(10)
+    t0 = time.perf_counter()
+    _burn(n)
+    _burn(n)
+    serial = time.perf_counter() - t0
+    with ThreadPoolExecutor(2) as pool:
+        t0 = time.perf_counter()
+        list(pool.map(_burn, [n, n]))
+        return serial / (time.perf_counter() - t0)
+
+
 def speed(args, config: FilterConfig) -> None:
     """Evaluations/s on kitti00 15-796 per batch size and thread count, the batching gain, memory,
     scaling in frames and features, the harness overhead, the default job and the cold compile."""
@@ -154,6 +178,7 @@ def speed(args, config: FilterConfig) -> None:
     t0 = time.perf_counter()
     run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)
     print(f"first call (numba cache load, or compile on a cold cache): {time.perf_counter() - t0:.2f} s", flush=True)
+    print(f"2-thread ceiling now (a pure numba nogil loop, 2 threads vs 1): {_thread_ceiling():.2f}x", flush=True)
     # Thread counts interleaved run by run, so that they see the same machine load.
     for n_threads in args.threads:
         set_threads(n_threads)
