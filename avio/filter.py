@@ -140,9 +140,17 @@ def _announce_compile():
     """Say so on stderr when the first kernel call of the process will compile it (a cold
     numba cache), print a heartbeat every 10 s while it does and how long it took."""
     global _kernel_loaded
-    if _kernel_loaded or _kernel_cached():
+    cached = False if _kernel_loaded else _kernel_cached()
+    if _kernel_loaded or cached:
         _kernel_loaded = True
         yield
+        return
+    if cached is None:  # cannot tell: say something only if the call turns out to be long
+        t0 = time.perf_counter()
+        yield
+        _kernel_loaded = True
+        if time.perf_counter() - t0 > 5.0:
+            print(f"compiled or loaded the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
         return
     where = numba.config.CACHE_DIR or os.path.join(os.path.dirname(_kernels.__file__), "__pycache__")
     print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in {where})",
