@@ -215,7 +215,8 @@ class FilterConfig:
     min_feature_flow_px: features moving less than this between consecutive images are not
         used (0: all are used; dropping them did not help).
     stationary_flow_px, stationary_max_coherence, stationary_imu_window_s,
-        stationary_imu_variance_ratio, zero_velocity_sigma_mps: standing-still detection and its
+        stationary_imu_variance_ratio (None: the images alone decide), zero_velocity_sigma_mps:
+        standing-still detection and its
         pseudo-measurement (module docstring); the flow threshold suits pixel noise up to
         ~0.7 px; the coherence (median cosine between a feature's two frame steps: about -0.5
         for pixel noise at a standstill, 1 when moving) catches slow motion below the noise.
@@ -244,7 +245,7 @@ class FilterConfig:
     stationary_flow_px: float = 1.5
     stationary_max_coherence: float = 0.25
     stationary_imu_window_s: float = 1.0
-    stationary_imu_variance_ratio: float = 1.5
+    stationary_imu_variance_ratio: float | None = 1.5
     zero_velocity_sigma_mps: float = 0.1
     init_sigma_p_m: float = 0.01
     init_sigma_theta_rad: float = float(np.radians(0.1))
@@ -270,6 +271,8 @@ class FilterConfig:
                      "stationary_imu_variance_ratio", "divergence_max_variance", "divergence_max_speed_mps",
                      "imu_noise_scale"):
             value = getattr(self, name)
+            if value is None and name == "stationary_imu_variance_ratio":
+                continue  # standstill from the images alone
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise FilterError(f"FilterConfig.{name} = {value!r}: must be a finite number > 0")
 
@@ -393,6 +396,8 @@ def imu_still(imu, frame_t_s: np.ndarray, noise, config: FilterConfig) -> np.nda
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = (c1[i1] - c1[i0]) / count
         var = (c2[i1] - c2[i0]) / count - mean**2
+    if config.stationary_imu_variance_ratio is None:  # a rig whose IMU shakes at rest (rotors): images only
+        return np.ones(len(frame_t_s), bool)
     return (count[:, 0] >= 5) & np.all(var < config.stationary_imu_variance_ratio * var0, axis=1)
 
 

@@ -16,7 +16,7 @@ the trusted reference.
   hand or CAD calibration), so the optimisers have something to find; set it to zeros to search
   around Kalibr itself. Kalibr plays the truth: the calibration errors are reported against it.
 - Filter defaults that work here: ``min_parallax_m`` 0.005 (frames are 1.4 cm apart, so the
-  KITTI-sized 0.05 m blocks every update); ``stationary_imu_variance_ratio`` 1e6, i.e. the
+  KITTI-sized 0.05 m blocks every update); ``stationary_imu_variance_ratio`` None: the
   standstill is detected from the images alone (on the ground the running rotors shake the IMU
   to 12-1500 times its white-noise variance, so the IMU test never passes and 5 s go without a
   zero-velocity update: 0.33 m instead of 0.08 m over 0-30 s); the initial gyro bias from the
@@ -57,7 +57,7 @@ class EurocParams(VioParams):
     nominal_perturbation: nominal = Kalibr + this (avio.kitti00.CalibrationPerturbation fields).
     """
 
-    filter_defaults = {"min_parallax_m": 0.005, "stationary_imu_variance_ratio": 1.0e6}
+    filter_defaults = {"min_parallax_m": 0.005, "stationary_imu_variance_ratio": None}
 
     data_dir: str | None = None
     drives: tuple = ((20.0, 30.0),)

@@ -38,7 +38,7 @@ import numpy as np
 from avio.calibration_error import calibration_errors
 from avio.filter import FilterConfig, FilterError, FilterResult, prepare, run
 from avio.metrics import drift_metrics, pose_errors
-from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse
+from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse, scored_frames
 from avio.sequence import Calibration, Sequence
 from bench.calibration_space import make_calibration_space
 from bench.problems.base import ProblemError
@@ -263,6 +263,7 @@ class VioProblem:
         self.divergence_penalty_m = float(p.divergence_penalty_m)
         self.objective = p.objective
         self._prepared = {id(s): prepare(s, self.filter_config) for s in self.drives}
+        self._scored = {}  # the likelihood's scored frames per drive (calibration-free, once)
         truth = first.truth_calibration
         self.truth = None if truth is None else self.calibration_space.encode(truth)[0]
         # the exact calibrations: a round trip through Euler angles near gimbal lock moves R by ~1e-7
@@ -306,7 +307,11 @@ class VioProblem:
         truths = [s.truth for s in drives]
         penalty = self.divergence_penalty_m
         rmse = pooled_position_rmse(results, truths, penalty)
-        nll, nis_per_dof = innovation_nll(results, penalty)
+        for s in drives:
+            if id(s) not in self._scored:
+                self._scored[id(s)] = scored_frames(s)
+        scored = [self._scored[id(s)] for s in drives]
+        nll, nis_per_dof = innovation_nll(results, penalty, scored)
         f = rmse if self.objective == "position_rmse" else nll
         errors = [pose_errors(r, s.truth) for r, s in zip(results, drives)]
         frames = np.array([s.n_frames for s in drives], float)
