@@ -57,12 +57,13 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
             params = SyntheticParams(**{k: _plain(v) for k, v in row["params"].items()})
             space = params.space_for(problem.sequence.reference_calibration, problem.sequence.image_size_px)
             cals.append(space.decode(np.asarray(row["best_x"], float)[None]))
-        batch = Calibration.stack(cals + [problem.sequence.reference_calibration])
+        batch = Calibration.stack(cals + [problem.sequence.truth_calibration, problem.sequence.reference_calibration])
         result = problem.run_filter(batch, problem.holdout)
         rmse = position_rmse_objective(result, problem.holdout.truth, problem.divergence_penalty_m)
         ref_errors = calibration_errors(problem.sequence.reference_calibration, problem.sequence.truth_calibration)
         for i, (index, _) in enumerate(group.iterrows()):
-            out.append({"index": index, "holdout_rmse_m": rmse[i], "holdout_rmse_reference_m": rmse[-1],
+            out.append({"index": index, "holdout_rmse_m": rmse[i], "holdout_rmse_truth_m": rmse[-2],
+                        "holdout_rmse_reference_m": rmse[-1],
                         **{f"reference_{k}": float(ref_errors[k][0]) for k in ERRORS}})
     return pd.DataFrame(out).set_index("index")
 
@@ -75,6 +76,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
             row[k] = g[k].median()
             row[f"reference_{k}"] = g[f"reference_{k}"].median()
         row["holdout_rmse_m"] = g["holdout_rmse_m"].median()
+        row["holdout_rmse_truth_m"] = g["holdout_rmse_truth_m"].median()
         row["holdout_rmse_reference_m"] = g["holdout_rmse_reference_m"].median()
         row["holdout_better_than_reference"] = f"{int((g.holdout_rmse_m < g.holdout_rmse_reference_m).sum())}/{len(g)}"
         rows.append(row)
