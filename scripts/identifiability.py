@@ -88,11 +88,12 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
 
     fig = Figure(figsize=(11, 3.6))
     labels = [f"{r.objective}\n{r.drives} drive(s), {r.free} free" for r in summary.itertuples()]
-    for ax, k, unit in zip(fig.subplots(1, 4), ERRORS, ("deg", "px", "px", "cm")):
+    titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)")
+    for ax, k, title in zip(fig.subplots(1, 4), ERRORS, titles):
         ax.bar(range(len(summary)), summary[k], color="tab:blue")
         ax.axhline(summary[f"reference_{k}"].median(), color="tab:red", ls="--", label="reference")
         ax.set_xticks(range(len(summary)), labels, rotation=90, fontsize=6)
-        ax.set_title(f"{k.replace('_error', '').replace('_', ' ')} ({unit})", fontsize=8)
+        ax.set_title(title, fontsize=8)
         ax.legend(fontsize=6)
     fig.suptitle("Calibration error of CMA-ES's best point, median over seeds (synthetic, local space)", fontsize=9)
     fig.tight_layout()
