@@ -165,7 +165,7 @@ def compute(problem, problem_config: dict, records: list[dict], folder: Path, pr
     from avio.metrics import drift_metrics, pose_errors
     from avio.sequence import Calibration
     from bench.calibration_space import paper_parameters
-    from bench.problems.vio import calibration_errors
+    from avio.calibration_error import calibration_errors
 
     space = problem.space
     rows, batch = _sources(problem, records)

@@ -56,14 +56,13 @@ def _finished_records(dirs) -> list[dict]:
 
 def _is_vio_problem(name: str) -> bool:
     """Whether the registered problem ``name`` is a VIO problem (analytic and unknown ones are not)."""
-    from bench.problems import vio
+    from bench.problems.vio import VioProblem
 
-    base = getattr(vio, "VioProblem", None) or vio.VioRmseProblem
     try:
         factory = problems.get(name)
     except KeyError:
         return False
-    return isinstance(factory, type) and issubclass(factory, base)
+    return isinstance(factory, type) and issubclass(factory, VioProblem)
 
 
 def _problem_key(record: dict) -> str:

@@ -347,8 +347,5 @@ def _same_calibration(a: Calibration, b: Calibration) -> bool:
     return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in Calibration.__dataclass_fields__)
 
 
-#: the name the first implementation used; kept for callers outside bench/problems.
-VioRmseProblem = VioProblem
-
-__all__ = ["Drives", "VioParams", "VioProblem", "VioRmseProblem", "calibration_errors", "default_data_dir",
+__all__ = ["Drives", "VioParams", "VioProblem", "default_data_dir",
            "filter_config"]
