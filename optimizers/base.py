@@ -17,6 +17,8 @@ and ``_tell(X, f)`` learns from its values. The base owns everything the harness
 
 from __future__ import annotations
 
+import abc
+
 import numbers
 from typing import Protocol, runtime_checkable
 
@@ -101,7 +103,7 @@ class WorstFiniteFill:
 _NONFINITE = ("inf", "worst")
 
 
-class AskTell:
+class AskTell(abc.ABC):
     """Base of every plugin: bounds, ask/tell guards, NaN handling, best tracking (module doc).
 
     Subclasses call ``super().__init__(lower, upper)`` first, then implement ``_ask() -> X (n, d)``
@@ -160,11 +162,13 @@ class AskTell:
     def best(self) -> tuple[np.ndarray, float]:
         return self._best_tracker.x.copy(), self._best_tracker.f
 
+    @abc.abstractmethod
     def _ask(self) -> np.ndarray:
-        raise NotImplementedError(f"{type(self).__name__} must implement _ask()")
+        """The next batch (n, d) in raw units (the plugin's own algorithm)."""
 
+    @abc.abstractmethod
     def _tell(self, X: np.ndarray, f: np.ndarray) -> None:
-        raise NotImplementedError(f"{type(self).__name__} must implement _tell()")
+        """Take the values f (n,) of the last batch X (n, d) (the plugin's own algorithm)."""
 
     # --- coordinates -----------------------------------------------------------------------
 
