@@ -244,12 +244,7 @@ def run_job(
     fails this job only: the record says ``status: failed`` with the error.
     """
     job_dir = Path(job_dir)
-    try:
-        lock = FolderLock(job_dir, "job").acquire()
-    except LockError as err:
-        raise RunError(str(err)) from None
-    except OSError as err:
-        raise JobFolderError(f"{job_dir}: cannot create the job folder or its lock ({err})") from None
+    lock = _lock_job(job_dir)
     try:
         return _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label,
                            progress_every_s, optimizer_class, progress)
@@ -504,6 +499,17 @@ def _optimizer_stop(optimizer) -> str | None:
     return None if reason is None else f"optimizer: {reason}"
 
 
+def _lock_job(job_dir: Path, context: str = "") -> "FolderLock":
+    """The job folder's lock, held by this process (RunError when another holds it,
+    JobFolderError when the folder or its lock file cannot be created)."""
+    try:
+        return FolderLock(job_dir, "job").acquire()
+    except LockError as err:
+        raise RunError(str(err)) from None
+    except OSError as err:
+        raise JobFolderError(f"{job_dir}: cannot create the job folder or its lock ({err}){context}") from None
+
+
 def record_failure(job_dir: Path, identity: dict, config: dict, exc: BaseException) -> dict:
     """Write the record of a job that failed before its run loop started (e.g. its problem did not build).
 
@@ -511,13 +517,7 @@ def record_failure(job_dir: Path, identity: dict, config: dict, exc: BaseExcepti
     the folder cannot be written.
     """
     job_dir = Path(job_dir)
-    try:
-        lock = FolderLock(job_dir, "job").acquire()
-    except LockError as err:
-        raise RunError(str(err)) from None
-    except OSError as err:
-        raise JobFolderError(f"{job_dir}: cannot create the job folder or its lock ({err}) after: "
-                             f"{type(exc).__name__}: {exc}") from None
+    lock = _lock_job(job_dir, f" after: {type(exc).__name__}: {exc}")
     try:
         try:
             previous = read_record(job_dir)
