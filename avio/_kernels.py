@@ -63,7 +63,7 @@ def measure_workspace():
 
 
 @numba.njit(cache=True, error_model="numpy")
-def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws):
+def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23):
     """Innovations r (F, 4) pixels, their Jacobians J (F, 4, 12) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (F, 4, 6) (the measurement
     noise model, avio.measurement.feature_residuals) and the map C (12, 27) from the error
@@ -74,7 +74,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     pose) -> camera pose errors ``[dp_cam, phi]`` (``phi = R_cam_imu dtheta``,
     ``dp_cam = dp - R_world_imu [p_imu_cam]x dtheta``) -> relative-pose errors
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
-    -> residuals (avio.measurement.feature_residuals).
+    -> residuals (avio.measurement.feature_residuals). ``pair23=False`` leaves residual 1 (the
+    Sampson distance 2-3, which the update does not use) zero.
     """
     R3, p3, Jsh, Rc, pc, G, M, R12, R13, R23, D, E = ws
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
@@ -117,7 +118,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     for i in range(3):
         t12[i], t13[i] = a12[i], a13[i]
     for f in range(uv.shape[0]):
-        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[f], J[f], Gp[f])
+        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[f], J[f], Gp[f], pair23)
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
         col = 6 * (jj + 1)
@@ -153,7 +154,7 @@ def measure_all(R, p, v, cp, cR, omega, td, fx, fy, cx, cy, Rci, pic, uv):
     ws = measure_workspace()
     for i in range(n):
         measure(R[i], p[i], v[i], cp[0, i], cR[0, i], cp[1, i], cR[1, i], omega[i], td[i], fx[i], fy[i],
-                cx[i], cy[i], Rci[i], pic[i], uv, r[i], J[i], Gp, C[i], t12[i], t13[i], ws)
+                cx[i], cy[i], Rci[i], pic[i], uv, r[i], J[i], Gp, C[i], t12[i], t13[i], ws, True)
     return r, J, C, t12, t13
 
 
@@ -284,7 +285,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3, jw = ws
     G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, beta = nws
     oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
-    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws)
+    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws, False)
     # Without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)

@@ -189,7 +189,7 @@ def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G):
+def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G, pair23=True):
     """Innovations ``r = z - h`` (4,) pixels, Jacobian ``J = dh/d[psi12, dt12, psi13, dt13]``
     (4, 12) of one feature (written into r, J), so that ``dr = -J d``, the Kalman convention,
     and ``G = dr / d(u1, v1, u2, v2, u3, v3)`` (4, 6), the residuals' sensitivity to the pixel
@@ -201,36 +201,46 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G)
     relative poses (``R23 = R12^T R13``, ``t23 = R12^T (t13 - t12)``). The epipolar
     measurements are ``z = 0`` with ``h`` the Sampson distance; the transfer is ``z = m3``.
     Pair 2–3 is chained to camera 1: ``psi23 = psi13 - R23^T psi12``,
-    ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``.
+    ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``. ``pair23=False`` skips r1 (row 1 of r, J
+    and G are zero): the filter's update does not use it (avio/_kernels.py, USED_RESIDUALS),
+    and it costs a third of the function.
     """
     ifx, ify = 1.0 / fx, 1.0 / fy
     x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)
     x2 = ((uv[1, 0] - cx) * ifx, (uv[1, 1] - cy) * ify, 1.0)
     x3 = ((uv[2, 0] - cx) * ifx, (uv[2, 1] - cy) * ify, 1.0)
     h0, gp0, gt0, w12, gx0 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
-    h1, gp1, gt1, _, gx1 = epipolar_sampson(R23, t23, x2, x3, fx, fy)
-    r[0], r[1] = -h0, -h1
+    r[0] = -h0
     for c in range(6):
         for a in range(4):
             G[a, c] = 0.0
     for c in range(4):
         G[0, c] = -gx0[c]
-        G[1, 2 + c] = -gx1[c]
     transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G[2:4, 0:4])
     for a in range(2):
         for c in range(4):
             G[2 + a, c] = -G[2 + a, c]
         G[2 + a, 4 + a] = 1.0
-    Rg = rot(R23, gp1)
-    gx = cross(gt1, t23)
-    R12g = rot(R12, gt1)
     for c in range(3):
         J[0, c], J[0, 3 + c] = gp0[c], gt0[c]
         J[0, 6 + c], J[0, 9 + c] = 0.0, 0.0
-        J[1, c] = -Rg[c] + gx[c]
-        J[1, 3 + c] = -R12g[c]
-        J[1, 6 + c] = gp1[c]
-        J[1, 9 + c] = R12g[c]
+    if pair23:
+        h1, gp1, gt1, _, gx1 = epipolar_sampson(R23, t23, x2, x3, fx, fy)
+        r[1] = -h1
+        for c in range(4):
+            G[1, 2 + c] = -gx1[c]
+        Rg = rot(R23, gp1)
+        gx = cross(gt1, t23)
+        R12g = rot(R12, gt1)
+        for c in range(3):
+            J[1, c] = -Rg[c] + gx[c]
+            J[1, 3 + c] = -R12g[c]
+            J[1, 6 + c] = gp1[c]
+            J[1, 9 + c] = R12g[c]
+    else:
+        r[1] = 0.0
+        for c in range(12):
+            J[1, c] = 0.0
     u, v = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J[2:4])
     r[2], r[3] = uv[2, 0] - u, uv[2, 1] - v
 
