@@ -2,29 +2,41 @@
 # The identifiability study (issue 11): which objective, with how many drives and which variables
 # free, calibrates closest to the truth? CMA-ES (a leader on every VIO problem of the committed
 # sweeps) on `synthetic` in the local space, for each objective x {1, 4 drives} x {10 free,
-# 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, seeds 0-4 (the
+# 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus the likelihood
+# with 16 drives and 7 free (does its error keep shrinking as 1/sqrt(drives)?), seeds 0-4 (the
 # optimiser's seed is also the data seed: five cameras, five noise realisations). Then the
 # summary table and figure (scripts/identifiability.py).
-#   bash scripts/make_identifiability.sh [evals]
+#   bash scripts/make_identifiability.sh [evals] [configuration ...]
+# With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
+# others kept; without, the whole study is re-made.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 evals=${1:-400}
+shift || true
 out=results/identifiability
-rm -rf "$out"
-four='[paper_540m,paper_540m,paper_540m,paper_540m]'
+all=()
 for objective in position_rmse innovation_nll; do
   for drives in one four; do
-    for free in 10 7; do
-      name="${objective}_${drives}drive_${free}free"
-      d='[paper_540m]'; [ "$drives" = four ] && d=$four
-      extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
-      start=$(date -u +%s)
-      python -m bench problem=synthetic optimizer=cmaes seed='range(5)' budget.evals="$evals" report=false \
-        problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
-        'problem.params.data_seed=${seed}' "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
-        hydra.sweep.dir="$out/$name"
-      echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
-    done
+    for free in 10 7; do all+=("${objective}_${drives}drive_${free}free"); done
   done
+done
+all+=(innovation_nll_sixteendrive_7free)
+if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
+mkdir -p "$out"
+for name in "$@"; do
+  [[ " ${all[*]} " == *" $name "* ]] || { echo "make_identifiability: unknown configuration $name; valid: ${all[*]}" >&2; exit 2; }
+  objective=${name%_*drive_*free}
+  rest=${name#"${objective}_"}
+  case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
+  free=${rest#*drive_}; free=${free%free}
+  d="[$(printf 'paper_540m,%.0s' $(seq "$n"))]"; d=${d/,]/]}
+  extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
+  rm -rf "${out:?}/$name"
+  start=$(date -u +%s)
+  python -m bench problem=synthetic optimizer=cmaes seed='range(5)' budget.evals="$evals" report=false \
+    problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
+    'problem.params.data_seed=${seed}' "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    hydra.sweep.dir="$out/$name"
+  echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done
 python scripts/identifiability.py "$out"
