@@ -2,8 +2,8 @@
 # The identifiability study (issue 11): which objective, with how many drives and which variables
 # free, calibrates closest to the truth? CMA-ES (a leader on every VIO problem of the committed
 # sweeps) on `synthetic` in the local space, for each objective x {1, 4 drives} x {10 free,
-# 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus the likelihood
-# with 16 drives and 7 free (does its error keep shrinking as 1/sqrt(drives)?), seeds 0-4 (the
+# 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus both objectives
+# with 16 drives and 7 free (does the error keep shrinking as 1/sqrt(drives)?), seeds 0-4 (the
 # optimiser's seed is also the data seed: five cameras, five noise realisations). Then the
 # summary table and figure (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
@@ -20,7 +20,7 @@ for objective in position_rmse innovation_nll; do
     for free in 10 7; do all+=("${objective}_${drives}drive_${free}free"); done
   done
 done
-all+=(innovation_nll_sixteendrive_7free)
+all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
