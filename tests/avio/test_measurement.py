@@ -53,6 +53,29 @@ def test_triplet_jacobian_matches_finite_differences():
     assert np.abs((J - J_fd) / scale).max() < 1e-5
 
 
+def test_the_filter_path_without_the_unused_sampson_distance_keeps_the_other_rows():
+    # avio/_kernels.py measures with pair23=False (the update uses residuals 0, 2, 3): the other
+    # rows must be the very same bits, and row 1 zero.
+    from avio.measurement import feature_residuals, rot_t
+
+    intr, Rc, pc, uv, _ = _triplet(np.random.default_rng(5), n=1)
+    R12, t12, R13, t13 = (a[0] for a in relative_poses(Rc, pc))
+    R23 = R12.T @ R13
+    t23 = rot_t(R12, tuple(t13 - t12))
+    fx, fy, cx, cy = (float(a[0]) for a in intr)
+    out = {}
+    for pair23 in (True, False):
+        r, J, G = np.full((len(uv), 4), np.nan), np.full((len(uv), 4, 12), np.nan), np.full((len(uv), 4, 6), np.nan)
+        for f in range(len(uv)):
+            feature_residuals(uv[f], R12, tuple(t12), R13, tuple(t13), R23, t23, fx, fy, cx, cy, r[f], J[f], G[f],
+                              pair23)
+        out[pair23] = r, J, G
+    for full, lean in zip(out[True], out[False]):
+        np.testing.assert_array_equal(lean[:, [0, 2, 3]], full[:, [0, 2, 3]])
+        assert np.all(lean[:, 1] == 0.0)
+    assert np.all(out[True][0][:, 1] != 0.0)  # noisy pixels: the full path does compute r1
+
+
 def test_pixel_jacobian_matches_finite_differences():
     # G = d r / d pixels at the exact (zero-residual) geometry, where the Sampson distance is
     # a first-order distance: its pixel gradient has unit norm there.
