@@ -32,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 PHASES = ("measurement (residuals, Jacobians)", "C P, Sigma = C P C^T", "feature innovations (B, S_j, z_j)",
           "1-point RANSAC", "information sum (whitening, A, beta)", "gain K = P C^T X", "covariance downdate",
-          "state prediction", "covariance prediction", "window slide", "NIS / log det S / NLL statistics")
+          "state prediction", "covariance prediction", "window slide", "NIS / log det S / NLL statistics",
+          "residual rows, finiteness, noise model R_f", "(I + A Sigma)^-1 [A | beta] solve")
 
 
 def _indent(block: str, by: str = "    ") -> str:
@@ -70,6 +71,10 @@ def patch_kernels(src: str) -> str:
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
     src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
     src = _wrap(src, "    A[:] = 0.0\n", "    for b in range(d):\n        beta[b] = X[b, d]", 4)
+    src = _wrap(src, "    n_ok = 0\n    n_valid = 0\n", "    # CP = C P (C is", 11)
+    # the solve overwrites the right-hand side X[:, d]: each pass restores it from beta first
+    src = _replace(src, "    matmul(A, Sig, Mx)\n", "    for b in range(d):\n        X[b, d] = beta[b]\n    matmul(A, Sig, Mx)\n")
+    src = _wrap(src, "    for b in range(d):\n        X[b, d] = beta[b]\n", "    log_det_S = log_det_R\n", 12)
     src = _wrap(src, "    log_det_S = log_det_R\n", "    dof = M * used", 10)
     src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            K[a, b] = 0.0",
                 "    for a in range(27):\n        for b in range(d):\n            kab = K[a, b]", 5)
