@@ -3,7 +3,8 @@
 # free, calibrates closest to the truth? CMA-ES (a leader on every VIO problem of the committed
 # sweeps) on `synthetic` in the local space, for each objective x {1, 4 drives} x {10 free,
 # 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus both objectives
-# with 16 drives and 7 free (does the error keep shrinking as 1/sqrt(drives)?), seeds 0-4 (the
+# with 16 drives and 7 free (does the error keep shrinking as 1/sqrt(drives)?) and with 4 drives
+# and 5 free (the principal point frozen too: it trades against the rotation), seeds 0-4 (the
 # optimiser's seed is also the data seed: five cameras, five noise realisations). Then the
 # summary table and figure (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
@@ -20,7 +21,8 @@ for objective in position_rmse innovation_nll; do
     for free in 10 7; do all+=("${objective}_${drives}drive_${free}free"); done
   done
 done
-all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free)
+all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free position_rmse_fourdrive_5free
+      innovation_nll_fourdrive_5free)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -31,6 +33,7 @@ for name in "$@"; do
   free=${rest#*drive_}; free=${free%free}
   d="[$(printf 'paper_540m,%.0s' $(seq "$n"))]"; d=${d/,]/]}
   extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
+  [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
   rm -rf "${out:?}/$name"
   start=$(date -u +%s)
   python -m bench problem=synthetic optimizer=cmaes seed='range(5)' budget.evals="$evals" report=false \
