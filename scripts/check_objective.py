@@ -11,7 +11,8 @@
 4. When ``results/identifiability/summary.csv`` exists: the identifiability study's table.
 5. When the committed all-real sweeps exist (results/kitti00_tracks, results/kitti00_tracks_nll):
    how far each optimiser's best rotation lies from the rectified KITTI extrinsic (the local
-   space's rotation vector is the offset from it), under each objective.
+   space's rotation vector is the offset from it), under each objective, and its ray error
+   against the rectified KITTI calibration (avio.calibration_error.ray_error_deg).
 """
 
 from __future__ import annotations
@@ -100,6 +101,9 @@ def identifiability_summary() -> None:
 def real_track_rotations() -> None:
     import json
 
+    from avio.calibration_error import ray_error_deg
+    from bench.job import build_problem
+
     print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
     for name in ("kitti00_tracks", "kitti00_tracks_nll"):
         records = [json.loads(p.read_text()) for p in sorted((ROOT / "results" / name).glob("*/*/seed*/record.json"))]
@@ -108,12 +112,19 @@ def real_track_rotations() -> None:
             print(f"   results/{name}: no records")
             continue
         by_opt: dict[str, list[float]] = {}
+        rays: dict[str, list[float]] = {}
         for r in records:
             x = dict(zip(r["space"]["names"], r["best_x"]))
             by_opt.setdefault(r["optimizer"], []).append(float(np.linalg.norm([x["rx"], x["ry"], x["rz"]])))
+            problem = build_problem(r["config"])
+            cal = problem.calibration_space.decode(np.asarray(r["best_x"], float)[None])
+            trusted = problem.sequence.reference_calibration  # the rectified KITTI calibration (no truth here)
+            rays.setdefault(r["optimizer"], []).append(
+                float(ray_error_deg(cal, trusted, problem.sequence.image_size_px)[0]))
         objective = records[0]["config"]["problem"]["params"]["objective"]
         for opt, angles in sorted(by_opt.items()):
-            print(f"   {objective:>14} {opt:>7}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)})")
+            print(f"   {objective:>14} {opt:>7}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)});"
+                  f" ray error {np.median(rays[opt]):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in rays[opt])})")
 
 
 def main() -> None:
