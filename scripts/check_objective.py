@@ -9,7 +9,8 @@
    updates and the median position NEES (per-axis, with the filter's own sigmas), per seed.
 3. Truth against the reference over ``--seeds`` data seeds, under each objective.
 4. When ``results/identifiability/summary.csv`` exists: the identifiability study's table.
-5. When the committed all-real sweeps exist (results/kitti00_tracks, results/kitti00_tracks_nll):
+5. When the committed all-real sweeps exist (results/kitti00_tracks, results/kitti00_tracks_nll, and
+   their *_rotation variants, which calibrate the rotation alone):
    how far each optimiser's best rotation lies from the rectified KITTI extrinsic (the local
    space's rotation vector is the offset from it), under each objective, and its ray error
    against the rectified KITTI calibration (avio.calibration_error.ray_error_deg).
@@ -105,7 +106,7 @@ def real_track_rotations() -> None:
     from bench.job import build_problem
 
     print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
-    for name in ("kitti00_tracks", "kitti00_tracks_nll"):
+    for name in ("kitti00_tracks", "kitti00_tracks_nll", "kitti00_tracks_rotation", "kitti00_tracks_nll_rotation"):
         records = [json.loads(p.read_text()) for p in sorted((ROOT / "results" / name).glob("*/*/seed*/record.json"))]
         records = [r for r in records if r.get("status") == "ok"]
         if not records:
@@ -123,7 +124,7 @@ def real_track_rotations() -> None:
                 float(ray_error_deg(cal, trusted, problem.sequence.image_size_px)[0]))
         objective = records[0]["config"]["problem"]["params"]["objective"]
         for opt, angles in sorted(by_opt.items()):
-            print(f"   {objective:>14} {opt:>7}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)});"
+            print(f"   {name:>27} ({objective}) {opt:>5}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)});"
                   f" ray error {np.median(rays[opt]):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in rays[opt])})")
 
 

@@ -8,8 +8,9 @@ cannot be called inside a nopython kernel. So the script copies ``avio/`` into a
 folder, wraps each phase of avio/_kernels.py in ``for _q in range(rep[i])`` (``rep`` a new
 argument, all ones = the unchanged kernel), compiles that copy once (empty NUMBA_CACHE_DIR,
 ~40 s) and times the kitti00 15-796 batch with one phase doubled at a time, all variants
-interleaved round by round so they see the same machine load. The cost of a phase is the
-median time with it doubled minus the baseline's. Phases that change the state cannot simply
+interleaved: every round runs them in a new random order, each right after a baseline run. The
+cost of a phase is the median over the rounds of its time minus that of the baseline run just
+before it. Phases that change the state cannot simply
 run twice: the covariance prediction and the window slide run once more on a scratch copy
 (the copy, 729 numbers, is counted with them), the downdate runs -K, +K, -K (three times:
 half the difference is its cost). Results of the doubled runs are not used.
@@ -121,19 +122,31 @@ n = {batch}
 cals = _candidates(seq.truth_calibration, n, seed=n)
 t = time.perf_counter(); run(seq, cals, cfg, prep)
 print(f"compiled the patched kernel in {{time.perf_counter() - t:.1f}} s", flush=True)
-times = {{i: [] for i in range(-1, len(PHASES))}}
+def timed(i):
+    af.REP[:] = 1
+    if i >= 0:
+        af.REP[i] = 3 if i == 6 else 2
+    t = time.perf_counter(); run(seq, cals, cfg, prep)
+    return 1e3 * (time.perf_counter() - t) / n
+
+
+# Each round runs the variants in a new random order, each right after a baseline run; a
+# phase's cost is the median over the rounds of (variant - its baseline): the machine's slow
+# drifts cancel in the pairs.
+rng = np.random.default_rng(0)
+diffs, bases = {{i: [] for i in range(len(PHASES))}}, []
 for _ in range({rounds}):
-    for i in times:
-        af.REP[:] = 1
-        if i >= 0:
-            af.REP[i] = 3 if i == 6 else 2
-        t = time.perf_counter(); run(seq, cals, cfg, prep); times[i].append(time.perf_counter() - t)
-base = 1e3 * np.median(times[-1]) / n
-print(f"kitti00 15-796 ({{seq.n_frames}} frames), batch {{n}}, 1 thread, median of {rounds} rounds: "
-      f"{{base:.2f}} ms per evaluation")
+    for i in rng.permutation(len(PHASES)):
+        b = timed(-1)
+        bases.append(b)
+        diffs[int(i)].append(timed(int(i)) - b)
+base = float(np.median(bases))
+print(f"kitti00 15-796 ({{seq.n_frames}} frames), batch {{n}}, 1 thread, {rounds} rounds: {{base:.2f}} ms per "
+      f"evaluation (median of the {{len(bases)}} baseline runs; quartiles {{np.percentile(bases, 25):.2f}}-"
+      f"{{np.percentile(bases, 75):.2f}})")
 total = 0.0
 for i, name in enumerate(PHASES):
-    ms = (1e3 * np.median(times[i]) / n - base) / (2 if i == 6 else 1)
+    ms = float(np.median(diffs[i])) / (2 if i == 6 else 1)
     total += ms
     print(f"  {{name:>38}}: {{ms:6.2f}} ms  {{100 * ms / base:5.1f}} %")
 print(f"  {{'sum of the phases':>38}}: {{total:6.2f}} ms  {{100 * total / base:5.1f}} % (the rest: loop, copies, "
