@@ -39,7 +39,7 @@ HALF = {"fx": 2.0, "fy": 2.0, "cx": 2.0, "cy": 2.0, "roll": 0.1, "pitch": 0.1, "
 
 def perfect_data(points: int) -> None:
     problem = Synthetic(holdout=None, sim=PERFECT)
-    n_stationary = int(problem._prepared[id(problem.sequence)].stationary.sum())
+    n_stationary = int(problem.prepared(problem.sequence).stationary.sum())
     print(f"1. perfect data, default drive ({problem.sequence.n_frames} frames, {n_stationary} standstill frames):"
           f" f(truth) = {problem.f_truth:.4f} m, f(reference) = {problem.f_reference:.3f} m")
     names, truth = problem.space.names, problem.truth

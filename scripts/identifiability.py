@@ -51,17 +51,24 @@ def load(folder: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def best_calibrations(rows: pd.DataFrame, reference: Calibration, image_size_px) -> Calibration:
+    """The best point of each run (rows of :func:`load`), decoded in that run's own space around
+    the reference (each configuration frees other variables)."""
+    cals = []
+    for _, row in rows.iterrows():
+        params = SyntheticParams(**{k: _plain(v) for k, v in row["params"].items()})
+        space = params.space_for(reference, image_size_px)
+        cals.append(space.decode(np.asarray(row["best_x"], float)[None]))
+    return Calibration.stack(cals)
+
+
 def held_out(runs: pd.DataFrame) -> pd.DataFrame:
     """Held-out RMSE (m) of each run's best calibration and of the reference, per data seed."""
     out = []
     for data_seed, group in runs.groupby("data_seed"):
         problem = Synthetic(drives=["paper_540m"], holdout="paper_928m", data_seed=int(data_seed), space="local")
-        cals = []
-        for _, row in group.iterrows():
-            params = SyntheticParams(**{k: _plain(v) for k, v in row["params"].items()})
-            space = params.space_for(problem.sequence.reference_calibration, problem.sequence.image_size_px)
-            cals.append(space.decode(np.asarray(row["best_x"], float)[None]))
-        batch = Calibration.stack(cals + [problem.sequence.truth_calibration, problem.sequence.reference_calibration])
+        found = best_calibrations(group, problem.sequence.reference_calibration, problem.sequence.image_size_px)
+        batch = Calibration.stack([found, problem.sequence.truth_calibration, problem.sequence.reference_calibration])
         result = problem.run_filter(batch, problem.holdout)
         rmse = position_rmse_objective(result, problem.holdout.truth, problem.divergence_penalty_m)
         ref_errors = calibration_errors(problem.sequence.reference_calibration, problem.sequence.truth_calibration)

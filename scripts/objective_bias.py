@@ -52,9 +52,8 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from avio.filter import set_threads  # noqa: E402
 from avio.sequence import Calibration  # noqa: E402
 from avio.simulator import SimConfig, simulate  # noqa: E402
-from bench.problems.synthetic import Synthetic, SyntheticParams  # noqa: E402
-from bench.problems.vio import _plain  # noqa: E402
-from identifiability import load  # noqa: E402  (scripts/identifiability.py: the study's records)
+from bench.problems.synthetic import Synthetic  # noqa: E402
+from identifiability import best_calibrations, load  # noqa: E402  (scripts/identifiability.py)
 
 DRIVE = "paper_540m"
 FRESH_SEED0 = 100  # second entropy word of the fresh drives: (s, 100 + i)
@@ -80,16 +79,9 @@ STUDY_OFFSET_CONFIG = {"position_rmse": "position_rmse_fourdrive_10free",
 
 
 def study_calibrations(runs, data_seed: int, reference: Calibration, image_size) -> tuple[list[str], Calibration]:
-    """The best calibration of every study configuration for this data seed, decoded as
-    scripts/identifiability.py does (each run's own space around the reference)."""
+    """The best calibration of every study configuration for this data seed (their names, the batch)."""
     group = runs[runs.data_seed == data_seed].sort_values("config")
-    names, cals = [], []
-    for _, row in group.iterrows():
-        params = SyntheticParams(**{k: _plain(v) for k, v in row["params"].items()})
-        space = params.space_for(reference, image_size)
-        cals.append(space.decode(np.asarray(row["best_x"], float)[None]))
-        names.append(row["config"])
-    return names, Calibration.stack(cals)
+    return list(group["config"]), best_calibrations(group, reference, image_size)
 
 
 def evaluate_seed(seed: int, runs, noises: list[str], n_drives: int) -> dict:
@@ -117,10 +109,6 @@ def evaluate_seed(seed: int, runs, noises: list[str], n_drives: int) -> dict:
             rmse.append(metrics["position_rmse_m"])
             nll.append(metrics["innovation_nll"])
             div.append(metrics["diverged"])
-            # VioProblem caches the filter's preparation by id(sequence): forget this drive's
-            # entries so a later drive that reuses the id is prepared afresh
-            problem._prepared.pop(id(drive), None)
-            problem._scored.pop(id(drive), None)
         out[noise] = {"position_rmse": np.array(rmse), "innovation_nll": np.array(nll),
                       "diverged": np.array(div)}
     return out

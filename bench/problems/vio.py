@@ -262,8 +262,11 @@ class VioProblem:
         self.filter_config = filter_config(p.filter_settings())
         self.divergence_penalty_m = float(p.divergence_penalty_m)
         self.objective = p.objective
+        # Calibration-free work, once per sequence: prepare() and the likelihood's scored frames,
+        # cached by id for the problem's own drives and held-out drive only (the problem keeps
+        # them alive, so their ids cannot pass to another sequence); see prepared().
         self._prepared = {id(s): prepare(s, self.filter_config) for s in self.drives}
-        self._scored = {}  # the likelihood's scored frames per drive (calibration-free, once)
+        self._scored = {}
         truth = first.truth_calibration
         self.truth = None if truth is None else self.calibration_space.encode(truth)[0]
         # the exact calibrations: a round trip through Euler angles near gimbal lock moves R by ~1e-7
@@ -291,12 +294,30 @@ class VioProblem:
                 "holdout_content_hash": None if self.holdout is None else self.holdout.meta.get("content_hash"),
                 "objective": self.objective}
 
+    def _owns(self, sequence: Sequence) -> bool:
+        return sequence is self.holdout or any(sequence is s for s in self.drives)
+
+    def prepared(self, sequence: Sequence):
+        """avio.filter.prepare of ``sequence`` with this problem's filter settings: cached for the
+        problem's own drives and held-out drive, computed afresh for any other sequence (a cache
+        by id would hand a later sequence that reuses a freed id the wrong preparation)."""
+        if not self._owns(sequence):
+            return prepare(sequence, self.filter_config)
+        if id(sequence) not in self._prepared:
+            self._prepared[id(sequence)] = prepare(sequence, self.filter_config)
+        return self._prepared[id(sequence)]
+
+    def _scored_frames(self, sequence: Sequence) -> np.ndarray:
+        if not self._owns(sequence):
+            return scored_frames(sequence)
+        if id(sequence) not in self._scored:
+            self._scored[id(sequence)] = scored_frames(sequence)
+        return self._scored[id(sequence)]
+
     def run_filter(self, calibrations: Calibration, sequence: Sequence | None = None) -> FilterResult:
         """All filters of the batch over ``sequence`` (default: the first calibration drive)."""
         sequence = sequence or self.sequence
-        if id(sequence) not in self._prepared:
-            self._prepared[id(sequence)] = prepare(sequence, self.filter_config)
-        return run(sequence, calibrations, self.filter_config, prepared=self._prepared[id(sequence)])
+        return run(sequence, calibrations, self.filter_config, prepared=self.prepared(sequence))
 
     def score(self, cal: Calibration, drives: tuple[Sequence, ...] | None = None
               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -307,10 +328,7 @@ class VioProblem:
         truths = [s.truth for s in drives]
         penalty = self.divergence_penalty_m
         rmse = pooled_position_rmse(results, truths, penalty)
-        for s in drives:
-            if id(s) not in self._scored:
-                self._scored[id(s)] = scored_frames(s)
-        scored = [self._scored[id(s)] for s in drives]
+        scored = [self._scored_frames(s) for s in drives]
         nll, nis_per_dof = innovation_nll(results, penalty, scored)
         f = rmse if self.objective == "position_rmse" else nll
         errors = [pose_errors(r, s.truth) for r, s in zip(results, drives)]

@@ -149,6 +149,20 @@ def test_holdout_drive_has_the_same_camera_and_independent_noise():
     assert other.drives[1].meta["content_hash"] != a.meta["content_hash"]
 
 
+def test_only_the_problems_own_drives_keep_their_preparation(problem):
+    # the cache is keyed by id(sequence): a sequence the problem does not hold could be freed
+    # and its id reused by another, so it is prepared afresh every time
+    from avio.simulator import SimConfig, simulate
+
+    assert problem.prepared(problem.sequence) is problem.prepared(problem.sequence)
+    other = simulate(SimConfig.paper_540m(**SHORT["sim"]), (0, 7), true_calibration=problem.sequence.truth_calibration)
+    first, second = problem.prepared(other), problem.prepared(other)
+    assert first is not second
+    np.testing.assert_array_equal(first.stationary, second.stationary)
+    f_other, _ = problem.score(problem.sequence.truth_calibration, (other,))
+    assert np.isfinite(f_other).all() and id(other) not in problem._prepared
+
+
 def test_several_drives_pool_the_objective_over_every_frame():
     two = Synthetic(drives=["paper_540m", "paper_540m"], holdout=None, sim=SHORT["sim"])
     X = np.stack([two.truth, two.space.reference])
@@ -196,7 +210,7 @@ def test_perfect_data_on_the_default_drive_with_its_stop_scores_zero_at_the_trut
     the car creeps moved it to 0.2-5 m)."""
     perfect = Synthetic(holdout=None, sim={"imu_noise_on": False, "pixel_noise_px": 0.0, "outlier_fraction": 0.0})
     assert perfect.sequence.meta["config"]["n_stops"] is None  # the preset's stop is there
-    assert perfect._prepared[id(perfect.sequence)].stationary.sum() >= 10
+    assert perfect.prepared(perfect.sequence).stationary.sum() >= 10
     assert perfect.f_truth <= 0.01
     assert perfect.f_reference > 0.3
 
