@@ -31,7 +31,7 @@ import numpy as np
 from avio._linalg import copy1, copy2, matmul, so3_exp, solve
 from avio.imu_propagation import propagate_one, propagate_workspace
 from avio.measurement import feature_residuals, rot_t
-from avio.outliers import (_cholesky, feature_innovations_into, innovations_workspace, mahalanobis_gate,
+from avio.outliers import (cholesky_lanes, feature_innovations_into, innovations_workspace, mahalanobis_gate,
                            one_point_ransac_into, ransac_workspace)
 
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3
@@ -194,28 +194,30 @@ def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run)."""
     d = 12
     return (np.empty((F, 4)), np.empty((F, 4, d)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
-            np.empty(3), np.empty(3), np.empty((F, M, d)), np.empty((F, M)), np.empty(F, np.bool_),
+            np.empty(3), np.empty(3), np.empty((M, d, F)), np.empty((M, F)), np.empty(F, np.bool_),
             np.empty(F, np.bool_), np.empty(F, np.bool_), np.empty((d, d)), np.empty((d, d)), np.empty((d, d + 1)),
-            np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)), np.empty(d))
+            np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)))
 
 
 @numba.njit(cache=True, error_model="numpy")
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
-    pixel sensitivities of the 4 residuals (F, 4, 6); the M used residuals, their Jacobians
-    and pixel sensitivities (F, M), (F, M, 12), (F, M, 6); covariances R_f and their Cholesky
-    factors (F, M, M), standard deviations (F, M), log det R_f and log det S_f (F,), and an (M,)
-    and a (12,) vector."""
-    return (np.empty((F, 4, 6)), np.empty((F, M)), np.empty((F, M, 12)), np.empty((F, M, 6)),
-            np.empty((F, M, M)), np.empty((F, M)), np.zeros((F, M, M)), np.empty(F), np.empty(F), np.empty(M),
-            np.empty(12))
+    pixel sensitivities of the 4 residuals (F, 4, 6) (as avio.measurement writes them); then,
+    features last (avio/outliers.py), the M used residuals, their Jacobians and pixel
+    sensitivities (M, F), (M, 12, F), (M, 6, F); covariances R_f and their Cholesky factors
+    (M, M, F), standard deviations (M, F), log det R_f and log det S_f (F,), the whitened
+    residuals and Jacobians (M, F), (M, 12, F), one feature's whitened Jacobian (M, 12) and a
+    (12,) vector."""
+    return (np.empty((F, 4, 6)), np.empty((M, F)), np.empty((M, 12, F)), np.empty((M, 6, F)),
+            np.empty((M, M, F)), np.empty((M, F)), np.zeros((M, M, F)), np.empty(F), np.empty(F), np.empty((M, F)),
+            np.empty((M, 12, F)), np.empty((M, 12)), np.empty(12))
 
 
 @numba.njit(cache=True, error_model="numpy")
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
     (avio.outliers.innovations_workspace, then avio.outliers.ransac_workspace)."""
-    Lp, S, L, y = innovations_workspace(M, 12)
+    Lp, S, L, y = innovations_workspace(M, 12, F)
     Y, moved, inlier, count = ransac_workspace(F, M, 12)
     return Lp, S, L, y, Y, moved, inlier, count
 
@@ -235,25 +237,31 @@ NOISE_FLOOR = 0.01
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR, f):
-    """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of feature f (G (F, M, 6) the used
+def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
+    """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of every feature (G (M, 6, F) the used
     residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
-    log det R_f, into the workspace arrays."""
+    log det R_f, into the workspace arrays (features last: (M, M, F), (M, F), (F,))."""
     s2 = sigma_px * sigma_px
+    F = Gp.shape[2]
     for a in range(M):
         for b in range(a + 1):
-            acc = 0.0
-            for c in range(6):
-                acc += Gp[f, a, c] * Gp[f, b, c]
-            Rm[f, a, b] = s2 * acc
-            Rm[f, b, a] = s2 * acc
-        Rm[f, a, a] += s2 * NOISE_FLOOR * NOISE_FLOOR
-        sd[f, a] = np.sqrt(Rm[f, a, a])
-    _cholesky(Rm[f], Lm[f])
-    ld = 0.0
+            for f in range(F):
+                acc = 0.0
+                for c in range(6):
+                    acc += Gp[a, c, f] * Gp[b, c, f]
+                Rm[a, b, f] = s2 * acc
+                Rm[b, a, f] = s2 * acc
+        for f in range(F):
+            Rm[a, a, f] += s2 * NOISE_FLOOR * NOISE_FLOOR
+            sd[a, f] = np.sqrt(Rm[a, a, f])
+    cholesky_lanes(Rm, Lm)
+    for f in range(F):
+        ldR[f] = 0.0
     for a in range(M):
-        ld += np.log(Lm[f, a, a])
-    ldR[f] = 2.0 * ld
+        for f in range(F):
+            ldR[f] += np.log(Lm[a, a, f])
+    for f in range(F):
+        ldR[f] *= 2.0
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -282,49 +290,57 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
     """
     F, d = uv.shape[0], 12
-    r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3, jw = ws
-    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, beta = nws
+    r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3 = ws
+    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, Jw, jw_f, beta = nws
     oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
     measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws, False)
     # Without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
     moving = b12 > min_parallax_m and b23 > min_parallax_m
-    n_ok = 0
     n_valid = 0
     gain_limit2 = (max_transfer_gain * sigma_px) ** 2
     log_s2 = np.log(sigma_px * sigma_px)
+    # The used rows, features last (avio/outliers.py): every step below runs over all F
+    # features at once (SIMD); a feature's own operations are those of one feature alone.
+    for a in range(M):
+        u = USED_RESIDUALS[a]
+        for f in range(F):
+            r[a, f] = r4[f, u]
+        for b in range(d):
+            for f in range(F):
+                J[a, b, f] = J4[f, u, b]
+        for b in range(6):
+            for f in range(F):
+                Gp[a, b, f] = G4[f, u, b]
+    # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
     for f in range(F):
         n_valid += valid[f]
-        for a in range(M):
-            u = USED_RESIDUALS[a]
-            r[f, a] = r4[f, u]
-            for b in range(d):
-                J[f, a, b] = J4[f, u, b]
-            for b in range(6):
-                Gp[f, a, b] = G4[f, u, b]
-        # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
-        good = valid[f] and moving
-        for a in range(M):
-            good = good and np.isfinite(r[f, a])
-            for b in range(d):
-                good = good and np.isfinite(J[f, a, b])
-            for b in range(6):
-                good = good and np.isfinite(Gp[f, a, b])
-        if good:
-            _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR, f)
-            good = Rm[f, 1, 1] <= gain_limit2 and Rm[f, 2, 2] <= gain_limit2  # the transfer's rows
-        ok[f] = good
-        n_ok += good
-        if not good:
+        ok[f] = valid[f] and moving
+    for a in range(M):
+        for f in range(F):
+            ok[f] &= np.isfinite(r[a, f])
+        for b in range(d):
+            for f in range(F):
+                ok[f] &= np.isfinite(J[a, b, f])
+        for b in range(6):
+            for f in range(F):
+                ok[f] &= np.isfinite(Gp[a, b, f])
+    _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR)  # all features; only those still ok keep it
+    n_ok = 0
+    for f in range(F):
+        ok[f] &= Rm[1, 1, f] <= gain_limit2 and Rm[2, 2, f] <= gain_limit2  # the transfer's rows
+        n_ok += ok[f]
+    for f in range(F):
+        if not ok[f]:
             ldR[f] = M * log_s2
             for a in range(M):
-                r[f, a] = 0.0
-                sd[f, a] = sigma_px
+                r[a, f] = 0.0
+                sd[a, f] = sigma_px
                 for b in range(d):
-                    J[f, a, b] = 0.0
+                    J[a, b, f] = 0.0
                 for b in range(M):
-                    Rm[f, a, b] = sigma_px * sigma_px if a == b else 0.0
+                    Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
     # symmetric), Sigma = C P C^T (symmetrised).
     matmul(C, Pi, CP)
@@ -347,7 +363,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             if ok[f]:
                 d2 = 0.0
                 for a in range(M):
-                    d2 += r[f, a] * z[f, a]
+                    d2 += r[a, f] * z[a, f]
                 nll += 0.5 * (min(d2, chi2_threshold) + ldS[f] + M * LOG_2PI)
             else:
                 nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
@@ -358,7 +374,21 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         for f in range(F):
             inl[f] = gate[f]
     # Information form over the inliers: A = Jw^T Jw, beta = Jw^T rw with the whitened
-    # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T).
+    # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T): the whitening of all features at
+    # once (forward substitution, one residual row at a time), then the sums over the inliers
+    # in feature order.
+    for a in range(M):
+        for f in range(F):
+            acc = r[a, f]
+            for k in range(a):
+                acc -= Lm[a, k, f] * rw[k, f]
+            rw[a, f] = acc / Lm[a, a, f]
+        for b in range(d):
+            for f in range(F):
+                acc = J[a, b, f]
+                for k in range(a):
+                    acc -= Lm[a, k, f] * Jw[k, b, f]
+                Jw[a, b, f] = acc / Lm[a, a, f]
     A[:] = 0.0
     X[:] = 0.0
     used = 0
@@ -369,27 +399,18 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             continue
         used += 1
         log_det_R += ldR[f]
-        L = Lm[f]
-        for a in range(M):  # forward substitution, one residual row at a time
-            acc = r[f, a]
-            for k in range(a):
-                acc -= L[a, k] * rw[k]
-            rw[a] = acc / L[a, a]
-            rr += rw[a] * rw[a]
         for a in range(M):
+            rr += rw[a, f] * rw[a, f]
             for b in range(d):
-                acc = J[f, a, b]
-                for k in range(a):
-                    acc -= L[a, k] * HP[f, k, b]  # HP rows of earlier residuals hold Jw already
-                jw[b] = acc / L[a, a]
+                jw_f[a, b] = Jw[a, b, f]
+        for a in range(M):
+            rwa = rw[a, f]
             for b in range(d):
-                HP[f, a, b] = jw[b]
-            for b in range(d):
-                jb = jw[b]
+                jb = jw_f[a, b]
                 if jb != 0.0:
-                    X[b, d] += jb * rw[a]
+                    X[b, d] += jb * rwa
                     for c in range(b, d):
-                        A[b, c] += jb * jw[c]
+                        A[b, c] += jb * jw_f[a, c]
     for b in range(d):
         beta[b] = X[b, d]
         for c in range(b):

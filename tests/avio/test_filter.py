@@ -288,13 +288,15 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     r[3] += 40.0  # an outlier
     valid = np.ones(F, bool)
     valid[7] = False
-    B, z, logdet = np.empty((F, m, d)), np.empty((F, m)), np.empty(F)
-    feature_innovations(r, H, Sig, Rm, B, z, logdet)
+    # The kernels take features last (avio/outliers.py): r (m, F), H (m, d, F), Rm (m, m, F).
+    lanes = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1))
+    B, z, logdet = np.empty((m, d, F)), np.empty((m, F)), np.empty(F)
+    feature_innovations(lanes(r), lanes(H), Sig, lanes(Rm), B, z, logdet)
     S = H @ Sig @ np.swapaxes(H, 1, 2) + Rm
-    assert np.abs(z - np.linalg.solve(S, r[..., None])[..., 0]).max() < 1e-9
+    assert np.abs(z.T - np.linalg.solve(S, r[..., None])[..., 0]).max() < 1e-9
     assert np.abs(logdet - np.linalg.slogdet(S)[1]).max() < 1e-9
     gate = np.empty(F, bool)
-    mahalanobis_gate(r, z, valid, 11.34, gate)
+    mahalanobis_gate(lanes(r), z, valid, 11.34, gate)
     d2 = np.einsum("fa,fa->f", r, np.linalg.solve(S, r[..., None])[..., 0])
     assert np.array_equal(gate, valid & (d2 <= 11.34)) and not gate[3]
     # 1-point RANSAC by brute force: hypothesis h corrects by Sig H_h^T S_h^-1 r_h.
@@ -304,7 +306,7 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
         inl[:, h] = valid & np.all(np.abs(r - H @ dxh) <= 3.0 * sd, axis=1)
     count = np.where(valid, inl.sum(0), -1)
     got = np.empty(F, bool)
-    one_point_ransac(r, B, z, sd, valid, 3.0, got)
+    one_point_ransac(lanes(r), B, z, lanes(sd), valid, 3.0, got)
     assert np.array_equal(got, inl[:, np.argmax(count)]) and not got[3] and not got[7]
 
 
