@@ -71,8 +71,8 @@ def patch_kernels(src: str) -> str:
     src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py)", 2)
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
     src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
-    src = _wrap(src, "    A[:] = 0.0\n", "    for b in range(d):\n        beta[b] = X[b, d]", 4)
-    src = _wrap(src, "    n_ok = 0\n    n_valid = 0\n", "    # CP = C P (C is", 11)
+    src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        beta[b] = X[b, d]", 4)
+    src = _wrap(src, "    n_valid = 0\n    gain_limit2", "    # CP = C P (C is", 11)
     # the solve overwrites the right-hand side X[:, d]: each pass restores it from beta first
     src = _replace(src, "    matmul(A, Sig, Mx)\n", "    for b in range(d):\n        X[b, d] = beta[b]\n    matmul(A, Sig, Mx)\n")
     src = _wrap(src, "    for b in range(d):\n        X[b, d] = beta[b]\n", "    log_det_S = log_det_R\n", 12)
