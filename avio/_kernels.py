@@ -288,6 +288,8 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     capped terms of the valid features it did not use, and the residual slots (4 per valid
     feature). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
     :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
+    After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
+    avio/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
     """
     F, d = uv.shape[0], 12
     r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3 = ws
