@@ -64,8 +64,9 @@ def measure_workspace():
 
 @numba.njit(cache=True, error_model="numpy")
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23):
-    """Innovations r (F, 4) pixels, their Jacobians J (F, 4, 12) w.r.t. the relative-pose errors
-    ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (F, 4, 6) (the measurement
+    """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
+    ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (features last, as the
+    update uses them; avio.measurement.feature_residuals writes one feature's column; the measurement
     noise model, avio.measurement.feature_residuals) and the map C (12, 27) from the error
     state to those (so ``H = J C``, ``dr = -H dx``) of one filter, written into the arrays;
     also t12, t13 (3,).
@@ -118,7 +119,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     for i in range(3):
         t12[i], t13[i] = a12[i], a13[i]
     for f in range(uv.shape[0]):
-        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[f], J[f], Gp[f], pair23)
+        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[:, f], J[:, :, f], Gp[:, :, f],
+                          pair23)
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
         col = 6 * (jj + 1)
@@ -149,12 +151,17 @@ def measure_all(R, p, v, cp, cR, omega, td, fx, fy, cx, cy, Rci, pic, uv):
     (r (n, F, 4), J (n, F, 4, 12), C (n, 12, 27), t12 (n, 3), t13 (n, 3))."""
     n, F = R.shape[0], uv.shape[0]
     r, J, C = np.empty((n, F, 4)), np.empty((n, F, 4, 12)), np.empty((n, 12, 27))
-    Gp = np.empty((F, 4, 6))
+    rT, JT, Gp = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     t12, t13 = np.empty((n, 3)), np.empty((n, 3))
     ws = measure_workspace()
     for i in range(n):
         measure(R[i], p[i], v[i], cp[0, i], cR[0, i], cp[1, i], cR[1, i], omega[i], td[i], fx[i], fy[i],
-                cx[i], cy[i], Rci[i], pic[i], uv, r[i], J[i], Gp, C[i], t12[i], t13[i], ws, True)
+                cx[i], cy[i], Rci[i], pic[i], uv, rT, JT, Gp, C[i], t12[i], t13[i], ws, True)
+        for f in range(F):
+            for a in range(4):
+                r[i, f, a] = rT[a, f]
+                for b in range(12):
+                    J[i, f, a, b] = JT[a, b, f]
     return r, J, C, t12, t13
 
 
@@ -193,7 +200,7 @@ def inject_all(R, p, v, ba, bg, cp, cR, dx):
 def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run)."""
     d = 12
-    return (np.empty((F, 4)), np.empty((F, 4, d)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
+    return (np.empty((4, F)), np.empty((4, d, F)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
             np.empty(3), np.empty(3), np.empty((M, d, F)), np.empty((M, F)), np.empty(F, np.bool_),
             np.empty(F, np.bool_), np.empty(F, np.bool_), np.empty((d, d)), np.empty((d, d)), np.empty((d, d + 1)),
             np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)))
@@ -202,13 +209,13 @@ def update_workspace(F):
 @numba.njit(cache=True, error_model="numpy")
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
-    pixel sensitivities of the 4 residuals (F, 4, 6) (as avio.measurement writes them); then,
-    features last (avio/outliers.py), the M used residuals, their Jacobians and pixel
+    pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
+    (avio/outliers.py), the M used residuals, their Jacobians and pixel
     sensitivities (M, F), (M, 12, F), (M, 6, F); covariances R_f and their Cholesky factors
     (M, M, F), standard deviations (M, F), log det R_f and log det S_f (F,), the whitened
     residuals and Jacobians (M, F), (M, 12, F), one feature's whitened Jacobian (M, 12) and a
     (12,) vector."""
-    return (np.empty((F, 4, 6)), np.empty((M, F)), np.empty((M, 12, F)), np.empty((M, 6, F)),
+    return (np.empty((4, 6, F)), np.empty((M, F)), np.empty((M, 12, F)), np.empty((M, 6, F)),
             np.empty((M, M, F)), np.empty((M, F)), np.zeros((M, M, F)), np.empty(F), np.empty(F), np.empty((M, F)),
             np.empty((M, 12, F)), np.empty((M, 12)), np.empty(12))
 
@@ -308,13 +315,13 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     for a in range(M):
         u = USED_RESIDUALS[a]
         for f in range(F):
-            r[a, f] = r4[f, u]
+            r[a, f] = r4[u, f]
         for b in range(d):
             for f in range(F):
-                J[a, b, f] = J4[f, u, b]
+                J[a, b, f] = J4[u, b, f]
         for b in range(6):
             for f in range(F):
-                Gp[a, b, f] = G4[f, u, b]
+                Gp[a, b, f] = G4[u, b, f]
     # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
     for f in range(F):
         n_valid += valid[f]
