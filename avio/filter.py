@@ -80,7 +80,7 @@ from functools import lru_cache
 
 import numba
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from avio import _kernels
 from avio.imu_propagation import preintegrate, process_noise
@@ -175,7 +175,9 @@ def _announce_compile():
 
 @lru_cache(maxsize=None)
 def _chi2_ppf(probability: float, dof: int) -> float:
-    return float(chi2.ppf(probability, dof))
+    # scipy.stats.chi2.ppf's own formula (the same bits), without importing scipy.stats (0.76 s
+    # of every job's start)
+    return float(2.0 * gammaincinv(0.5 * dof, probability))
 
 
 OUTLIER_MODES = ("ransac", "mahalanobis", "both", "none")

@@ -310,6 +310,17 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     assert np.array_equal(got, inl[:, np.argmax(count)]) and not got[3] and not got[7]
 
 
+def test_the_gate_threshold_is_the_chi_square_quantile():
+    # avio.filter computes it without importing scipy.stats (slow to import): same bits.
+    from scipy.stats import chi2
+
+    from avio.filter import _chi2_ppf
+
+    for p in (0.5, 0.9, 0.95, 0.99, 0.999):
+        for dof in (1, 2, 3, 4, 12):
+            assert _chi2_ppf(p, dof) == float(chi2.ppf(p, dof))
+
+
 def test_the_transfer_gain_limit_decides_which_features_are_used():
     seq = make_circle_sequence(n_frames=20, pixel_noise_px=0.5)
     base = run(seq, seq.truth_calibration, FilterConfig())
