@@ -1,0 +1,51 @@
+"""The kernel's measuring scripts still fit the kernel: scripts/profile_kernel.py patches
+avio/_kernels.py by anchors on its source text, scripts/ab_kernel.py rewrites another commit's
+avio into package avio_base. Both would only fail when someone runs them, long after the edit
+that broke them."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _script(name: str):
+    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles():
+    prof = _script("profile_kernel")
+    patched = prof.patch_kernels((REPO / "avio" / "_kernels.py").read_text())
+    ast.parse(patched)  # valid Python
+    for i in range(len(prof.PHASES)):
+        assert f"range(rep[{i}])" in patched or f"range(rep[{i}] - 1)" in patched, prof.PHASES[i]
+    ast.parse(prof.patch_filter((REPO / "avio" / "filter.py").read_text()))
+
+
+def test_a_changed_kernel_is_a_clear_error_naming_the_anchor():
+    prof = _script("profile_kernel")
+    with pytest.raises(SystemExit, match="anchor not found"):
+        prof.patch_kernels("def nothing():\n    pass\n")
+
+
+def test_the_base_package_imports_only_itself(tmp_path, monkeypatch):
+    if subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True).returncode != 0:
+        pytest.skip("not a git checkout")
+    ab = _script("ab_kernel")
+    monkeypatch.setattr(ab.tempfile, "gettempdir", lambda: str(tmp_path))
+    pkg = ab.extract_base("HEAD") / "avio_base"
+    sources = {p.name: p.read_text() for p in pkg.glob("*.py")}
+    assert "_kernels.py" in sources and "filter.py" in sources
+    for name, text in sources.items():
+        assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), name
+    assert "from avio_base._linalg import" in sources["_kernels.py"]
