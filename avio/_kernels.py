@@ -31,8 +31,8 @@ import numpy as np
 from avio._linalg import copy1, copy2, matmul, so3_exp, solve
 from avio.imu_propagation import propagate_one, propagate_workspace
 from avio.measurement import feature_residuals, rot_t
-from avio.outliers import (cholesky_lanes, feature_innovations_into, innovations_workspace, mahalanobis_gate,
-                           one_point_ransac_into, ransac_workspace)
+from avio.outliers import (cholesky_lanes, feature_innovations_into, forward_lanes, innovations_workspace,
+                           log_det_lanes, mahalanobis_gate, one_point_ransac_into, ransac_workspace)
 
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3
 
@@ -262,13 +262,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
             Rm[a, a, f] += s2 * NOISE_FLOOR * NOISE_FLOOR
             sd[a, f] = np.sqrt(Rm[a, a, f])
     cholesky_lanes(Rm, Lm)
-    for f in range(F):
-        ldR[f] = 0.0
-    for a in range(M):
-        for f in range(F):
-            ldR[f] += np.log(Lm[a, a, f])
-    for f in range(F):
-        ldR[f] *= 2.0
+    log_det_lanes(Lm, ldR)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -386,12 +380,8 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T): the whitening of all features at
     # once (forward substitution, one residual row at a time), then the sums over the inliers
     # in feature order.
+    forward_lanes(Lm, r, rw)
     for a in range(M):
-        for f in range(F):
-            acc = r[a, f]
-            for k in range(a):
-                acc -= Lm[a, k, f] * rw[k, f]
-            rw[a, f] = acc / Lm[a, a, f]
         for b in range(d):
             for f in range(F):
                 acc = J[a, b, f]

@@ -69,6 +69,32 @@ def cholesky_lanes(S, L):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def log_det_lanes(L, out):
+    """out (F,) = log det of each L L^T, ``2 sum_i log L[i, i, f]``, from Cholesky factors L
+    (m, m, F) (:func:`cholesky_lanes`)."""
+    m, F = L.shape[0], L.shape[2]
+    for f in range(F):
+        out[f] = 0.0
+    for i in range(m):
+        for f in range(F):
+            out[f] += np.log(L[i, i, f])
+    for f in range(F):
+        out[f] *= 2.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def forward_lanes(L, b, y):
+    """y (m, F) = L^-1 b for each feature: forward substitution with lower factors L (m, m, F)."""
+    m, F = b.shape
+    for i in range(m):
+        for f in range(F):
+            s = b[i, f]
+            for k in range(i):
+                s -= L[i, k, f] * y[k, f]
+            y[i, f] = s / L[i, i, f]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def innovations_workspace(m, d, F):
     """Scratch arrays of :func:`feature_innovations_into` (m residuals per feature, d parameters,
     F features): Lp (d, d), S (m, m, F), L (m, m, F), y (m, F); allocated once per run."""
@@ -111,19 +137,8 @@ def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
             for f in range(F):
                 S[a, b, f] += Rm[a, b, f]
     cholesky_lanes(S, L)
-    for f in range(F):
-        logdet[f] = 0.0
-    for i in range(m):
-        for f in range(F):
-            logdet[f] += np.log(L[i, i, f])
-    for f in range(F):
-        logdet[f] *= 2.0
-    for i in range(m):
-        for f in range(F):
-            s = r[i, f]
-            for k in range(i):
-                s -= L[i, k, f] * y[k, f]
-            y[i, f] = s / L[i, i, f]
+    log_det_lanes(L, logdet)
+    forward_lanes(L, r, y)
     for i in range(m - 1, -1, -1):
         for f in range(F):
             s = y[i, f]
