@@ -65,9 +65,9 @@ def measure_workspace():
 @numba.njit(cache=True, error_model="numpy")
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
-    ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (features last, as the
-    update uses them; avio.measurement.feature_residuals writes one feature's column; the measurement
-    noise model, avio.measurement.feature_residuals) and the map C (12, 27) from the error
+    ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
+    noise model, avio.measurement.feature_residuals, which writes one feature's column: features
+    last, as the update uses them) and the map C (12, 27) from the error
     state to those (so ``H = J C``, ``dr = -H dx``) of one filter, written into the arrays;
     also t12, t13 (3,).
 
