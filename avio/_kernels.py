@@ -286,7 +286,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     J^T R^-1 r``) and ``log det S = log det R + log det(I + A Sigma)``.
     Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
     rejected, the update's NIS, log det S and residual count, its NLL contribution with the
-    capped terms of the valid features it did not use, and the residual slots (4 per valid
+    capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
     feature). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
     :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
