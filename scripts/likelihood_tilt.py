@@ -1,0 +1,93 @@
+"""The innovation likelihood's slope at the truth along one variable, split into its parts.
+
+scripts/objective_bias.py finds one significant slope of ``innovation_nll`` at the truth, along
+fy. This script measures it on fresh drives of the study's 5 cameras (as objective_bias.py
+builds them: data seed s, drives ``(s, 100 + i)``) for the truth +- one step along ``--var``,
+and prints the mean slope over the drives (+- SE, t) of:
+
+- ``composite``: the objective (avio/objectives.py: per-feature marginal likelihoods, capped);
+- ``joint``: the joint likelihood of each update over the features it used,
+  ``1/2 (NIS_k + log det S_k) / m_k`` summed over the scored frames (FilterResult.nis,
+  log_det_S, dof), and its two parts ``joint_nis`` and ``joint_ldS``;
+- ``used``: the number of residuals the updates used (whether the step changes the gate's
+  decisions).
+
+A log det part that is the same on every kind of data and a NIS part that balances it only
+with some noise sources say where the tilt comes from (README, "the likelihood's tilt").
+
+    python scripts/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
+        [--step 0.5] [--filter '{"imu_noise_scale": 1.4}']
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from avio.filter import set_threads  # noqa: E402
+from avio.objectives import scored_frames  # noqa: E402
+from avio.simulator import SimConfig, simulate  # noqa: E402
+from bench.problems.synthetic import Synthetic  # noqa: E402
+from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (scripts/objective_bias.py)
+
+PARTS = ("composite", "joint", "joint_nis", "joint_ldS", "used")
+
+
+def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: dict | None,
+           seeds=range(5)) -> dict[str, np.ndarray]:
+    """Per part, the (len(seeds) * n_drives,) central-difference slopes at the truth along var."""
+    out = {k: [] for k in PARTS}
+    for seed in seeds:
+        problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local", filter=filter_overrides)
+        camera = problem.sequence.truth_calibration
+        j = problem.space.names.index(var)
+        x = np.stack([problem.truth + d * np.eye(len(problem.truth))[j] for d in (-step, 0.0, step)])
+        batch = problem.calibration_space.decode(x)
+        config = getattr(SimConfig, DRIVE)(**NOISE[noise])
+        for i in range(n_drives):
+            drive = simulate(config, (seed, FRESH_SEED0 + i), true_calibration=camera)
+            res = problem.run_filter(batch, drive)
+            scored = scored_frames(drive)
+            dof = np.where(scored, res.dof, 0).sum(axis=1)
+            nis = np.where(scored, res.nis, 0.0).sum(axis=1) / dof
+            lds = np.where(scored, res.log_det_S, 0.0).sum(axis=1) / dof
+            vals = {"composite": np.where(scored, res.nll, 0.0).sum(axis=1) / np.where(scored, res.nll_slots, 0).sum(axis=1),
+                    "joint": 0.5 * (nis + lds), "joint_nis": 0.5 * nis, "joint_ldS": 0.5 * lds,
+                    "used": dof.astype(float)}
+            for k, v in vals.items():
+                out[k].append((v[2] - v[0]) / (2 * step))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--noise", choices=list(NOISE), default="default")
+    parser.add_argument("--drives", type=int, default=16, help="fresh drives per camera")
+    parser.add_argument("--var", default="fy", help="local-space variable (fx, fy, cx, cy, rx, ..., dz)")
+    parser.add_argument("--step", type=float, default=0.5, help="central-difference step in the variable's unit")
+    parser.add_argument("--filter", type=json.loads, default=None, help="FilterConfig overrides as JSON")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    args = parser.parse_args(argv)
+    set_threads(2)
+    start = time.perf_counter()
+    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds)
+    n = len(result["joint"])
+    print(f"{args.noise}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
+          f"mean over {n} drives +- SE (t) ({time.perf_counter() - start:.0f} s)")
+    for k in PARTS:
+        m, se = mean_se(result[k])
+        t = f"{m / se:+6.1f}" if se > 0 else "     -"
+        print(f"  {k:>10}: {m:+.3e} +- {se:.2e} ({t})")
+
+
+if __name__ == "__main__":
+    main()
