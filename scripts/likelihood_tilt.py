@@ -16,7 +16,7 @@ A log det part that is the same on every kind of data and a NIS part that balanc
 with some noise sources say where the tilt comes from (README, "the likelihood's tilt").
 
     python scripts/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
-        [--step 0.5] [--filter '{"imu_noise_scale": 1.4}']
+        [--step 0.5] [--filter '{"imu_noise_scale": 1.4}'] [--sim '{"gyro_bias_radps": [0, 0, 0]}']
 """
 
 from __future__ import annotations
@@ -43,8 +43,9 @@ PARTS = ("composite", "joint", "joint_nis", "joint_ldS", "used")
 
 
 def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: dict | None,
-           seeds=range(5)) -> dict[str, np.ndarray]:
-    """Per part, the (len(seeds) * n_drives,) central-difference slopes at the truth along var."""
+           seeds=range(5), sim_overrides: dict | None = None) -> dict[str, np.ndarray]:
+    """Per part, the (len(seeds) * n_drives,) central-difference slopes at the truth along var
+    (sim_overrides: SimConfig fields over the noise setting's)."""
     out = {k: [] for k in PARTS}
     for seed in seeds:
         problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local", filter=filter_overrides)
@@ -52,7 +53,7 @@ def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: d
         j = problem.space.names.index(var)
         x = np.stack([problem.truth + d * np.eye(len(problem.truth))[j] for d in (-step, 0.0, step)])
         batch = problem.calibration_space.decode(x)
-        config = getattr(SimConfig, DRIVE)(**NOISE[noise])
+        config = getattr(SimConfig, DRIVE)(**{**NOISE[noise], **(sim_overrides or {})})
         for i in range(n_drives):
             drive = simulate(config, (seed, FRESH_SEED0 + i), true_calibration=camera)
             res = problem.run_filter(batch, drive)
@@ -75,13 +76,15 @@ def main(argv=None) -> None:
     parser.add_argument("--var", default="fy", help="local-space variable (fx, fy, cx, cy, rx, ..., dz)")
     parser.add_argument("--step", type=float, default=0.5, help="central-difference step in the variable's unit")
     parser.add_argument("--filter", type=json.loads, default=None, help="FilterConfig overrides as JSON")
+    parser.add_argument("--sim", type=json.loads, default=None,
+                        help='SimConfig overrides as JSON, e.g. \'{"gyro_bias_radps": [0, 0, 0]}\'')
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     args = parser.parse_args(argv)
     set_threads(2)
     start = time.perf_counter()
-    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds)
+    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds, args.sim)
     n = len(result["joint"])
-    print(f"{args.noise}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
+    print(f"{args.noise}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
           f"mean over {n} drives +- SE (t) ({time.perf_counter() - start:.0f} s)")
     for k in PARTS:
         m, se = mean_se(result[k])
