@@ -6,14 +6,15 @@ builds them: data seed s, drives ``(s, 100 + i)``) for the truth +- one step alo
 and prints the mean slope over the drives (+- SE, t) of:
 
 - ``composite``: the objective (avio/objectives.py: per-feature marginal likelihoods, capped);
-- ``joint``: the joint likelihood of each update over the features it used,
-  ``1/2 (NIS_k + log det S_k) / m_k`` summed over the scored frames (FilterResult.nis,
-  log_det_S, dof), and its two parts ``joint_nis`` and ``joint_ldS``;
+- ``joint``: the joint likelihood of the updates over the features they used, per residual,
+  ``1/2 (sum_k NIS_k + sum_k log det S_k) / sum_k m_k`` over the scored frames
+  (FilterResult.nis, log_det_S, dof), and its two parts ``joint_nis`` and ``joint_ldS``;
 - ``used``: the number of residuals the updates used (whether the step changes the gate's
   decisions).
 
 A log det part that is the same on every kind of data and a NIS part that balances it only
-with some noise sources say where the tilt comes from (README, "the likelihood's tilt").
+with some noise sources say where the tilt comes from (README: "The likelihood has one small
+deterministic tilt, along fy").
 
     python scripts/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
         [--step 0.5] [--filter '{"imu_noise_scale": 1.4}'] [--sim '{"gyro_bias_radps": [0, 0, 0]}']
