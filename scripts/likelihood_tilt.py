@@ -41,15 +41,19 @@ from bench.problems.synthetic import Synthetic  # noqa: E402
 from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (scripts/objective_bias.py)
 
 PARTS = ("composite", "joint", "joint_nis", "joint_ldS", "used")
+#: besides the slopes, the objective's curvature along the variable (per unit^2)
+CURVATURE = "composite_curvature"
 
 
 def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: dict | None,
-           seeds=range(5), sim_overrides: dict | None = None) -> dict[str, np.ndarray]:
+           seeds=range(5), sim_overrides: dict | None = None, tie_focal: bool = False) -> dict[str, np.ndarray]:
     """Per part, the (len(seeds) * n_drives,) central-difference slopes at the truth along var
-    (sim_overrides: SimConfig fields over the noise setting's)."""
-    out = {k: [] for k in PARTS}
+    (sim_overrides: SimConfig fields over the noise setting's; tie_focal: fy = fx, so ``fx`` is
+    the common focal length), and the objective's curvature (CURVATURE)."""
+    out = {k: [] for k in (*PARTS, CURVATURE)}
     for seed in seeds:
-        problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local", filter=filter_overrides)
+        problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local", filter=filter_overrides,
+                            tie_focal=tie_focal)
         camera = problem.sequence.truth_calibration
         j = problem.space.names.index(var)
         x = np.stack([problem.truth + d * np.eye(len(problem.truth))[j] for d in (-step, 0.0, step)])
@@ -67,6 +71,8 @@ def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: d
                     "used": dof.astype(float)}
             for k, v in vals.items():
                 out[k].append((v[2] - v[0]) / (2 * step))
+            c = vals["composite"]
+            out[CURVATURE].append((c[2] + c[0] - 2 * c[1]) / step**2)
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -79,11 +85,12 @@ def main(argv=None) -> None:
     parser.add_argument("--filter", type=json.loads, default=None, help="FilterConfig overrides as JSON")
     parser.add_argument("--sim", type=json.loads, default=None,
                         help='SimConfig overrides as JSON, e.g. \'{"gyro_bias_radps": [0, 0, 0]}\'')
+    parser.add_argument("--tie-focal", action="store_true", help="fy = fx (the problem's tie_focal); --var fx is then both")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     args = parser.parse_args(argv)
     set_threads(2)
     start = time.perf_counter()
-    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds, args.sim)
+    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds, args.sim, args.tie_focal)
     n = len(result["joint"])
     print(f"{args.noise}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
           f"mean over {n} drives +- SE (t) ({time.perf_counter() - start:.0f} s)")
@@ -91,6 +98,13 @@ def main(argv=None) -> None:
         m, se = mean_se(result[k])
         t = f"{m / se:+6.1f}" if se > 0 else "     -"
         print(f"  {k:>10}: {m:+.3e} +- {se:.2e} ({t})")
+    slope, slope_se = mean_se(result["composite"])
+    curv, curv_se = mean_se(result[CURVATURE])
+    if curv > 2 * curv_se:  # the implied 1-D minimum of the mean objective, only where it is clearly curved
+        print(f"  objective's curvature {curv:+.3e} +- {curv_se:.2e} per unit^2: its mean's 1-D minimum lies "
+              f"{-slope / curv:+.3g} +- {slope_se / curv:.2g} from the truth")
+    else:
+        print(f"  objective's curvature {curv:+.3e} +- {curv_se:.2e} per unit^2: not clearly positive (flat along {args.var})")
 
 
 if __name__ == "__main__":
