@@ -34,20 +34,27 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402
+from avio.kitti00 import TRACKS_FILE, read_kitti00, read_numeric_table, read_real_tracks  # noqa: E402
 from avio.reference import CX_PX, CY_PX, FX_PX, FY_PX, kitti_2011_10_03_calibration  # noqa: E402
 
 MIN_STEP_M = 0.3  # frame pairs closer than this carry too little translation to read a direction from
 MIN_COMMON = 30  # landmarks seen in both frames, for the essential matrix
 
 
-def direction_offsets(data_dir: Path, first: int, last: int, chain_rotation: np.ndarray | None = None) -> np.ndarray:
+def direction_offsets(data_dir: Path, first: int, last: int, chain_rotation: np.ndarray | None = None,
+                      method: str = "essential") -> np.ndarray:
     """(n, 2) per frame pair k, k+1 of the window: visual minus ground-truth translation direction,
     degrees, about the camera's y axis and about its x axis. chain_rotation (3, 3): a camera-frame
     rotation Delta applied to the chain (``R_rect -> Delta R_rect``, so the truth's camera
-    orientations become ``R_W_cam Delta^T``); the estimate of D then moves by about -Delta."""
+    orientations become ``R_W_cam Delta^T``); the estimate of D then moves by about -Delta.
+    method: ``essential`` (the epipole of the 2-D tracks alone) or ``pnp`` (the tracks' stereo
+    points of frame k, triangulated by KITTI, against their pixels in frame k+1: metric, so the
+    rotation-translation ambiguity of forward motion cannot bias it)."""
     raw = read_kitti00(data_dir / "kitti00")
     frame, landmark, uv = read_real_tracks(data_dir / "kitti00" / TRACKS_FILE, first, last)
+    rows = read_numeric_table(data_dir / "kitti00" / TRACKS_FILE, 8)
+    rows = rows[(rows[:, 0] >= first) & (rows[:, 0] <= last)]
+    xyz = rows[:, 5:8]  # the stereo point in its frame's cam0 coordinates (same rows as read_real_tracks)
     K = np.array([[FX_PX, 0.0, CX_PX], [0.0, FY_PX, CY_PX], [0.0, 0.0, 1.0]])
     out = []
     for k in range(first, last):
@@ -60,8 +67,15 @@ def direction_offsets(data_dir: Path, first: int, last: int, chain_rotation: np.
         if len(ia) < MIN_COMMON or np.linalg.norm(c_gt) < MIN_STEP_M:
             continue
         p1, p2 = uv[a][ia], uv[b][ib]
-        E, inliers = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.9999, threshold=0.5)
-        _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=inliers)
+        if method == "essential":
+            E, inliers = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.9999, threshold=0.5)
+            _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=inliers)
+        else:
+            ok, rvec, t, _ = cv2.solvePnPRansac(xyz[a][ia], p2, K, None, reprojectionError=1.0,
+                                                iterationsCount=500, flags=cv2.SOLVEPNP_ITERATIVE)
+            if not ok:
+                continue
+            R = cv2.Rodrigues(rvec)[0]
         c_vis = (-R.T @ t).ravel()  # camera k+1's centre in camera k (OpenCV: x2 = R x1 + t)
         out.append([np.degrees(np.arctan2(c_vis[0], c_vis[2]) - np.arctan2(c_gt[0], c_gt[2])),
                     np.degrees(np.arctan2(c_vis[1], c_vis[2]) - np.arctan2(c_gt[1], c_gt[2]))])
@@ -95,23 +109,24 @@ def main(argv=None) -> None:
     parser.add_argument("--first", type=int, default=15)
     parser.add_argument("--last", type=int, default=153)
     args = parser.parse_args(argv)
-    d = direction_offsets(args.data, args.first, args.last)
-    yaw, pitch = d[:, 0], d[:, 1]
-    dy, dx = np.median(yaw), -np.median(pitch)
-    print(f"frames {args.first}-{args.last}: {len(d)} frame pairs; visual minus ground-truth translation direction "
-          f"(median, bootstrap SE; quartiles):")
-    print(f"  about the camera's y axis {np.median(yaw):+.3f} +- {bootstrap_median_se(yaw):.3f} deg "
-          f"({np.percentile(yaw, 25):+.2f}, {np.percentile(yaw, 75):+.2f})")
-    print(f"  about the camera's x axis {np.median(pitch):+.3f} +- {bootstrap_median_se(pitch):.3f} deg "
-          f"({np.percentile(pitch, 25):+.2f}, {np.percentile(pitch, 75):+.2f})")
-    print(f"  -> the chain's camera-frame correction D ~ ({dx:+.3f}, {dy:+.3f}, ?) deg about (x, y, z): "
-          f"{np.hypot(dx, dy):.2f} deg without its unseen z part")
+    for method in ("essential", "pnp"):
+        d = direction_offsets(args.data, args.first, args.last, method=method)
+        yaw, pitch = d[:, 0], d[:, 1]
+        dy, dx = np.median(yaw), -np.median(pitch)
+        print(f"frames {args.first}-{args.last}, {method}: {len(d)} frame pairs; visual minus ground-truth translation "
+              f"direction (median, bootstrap SE; quartiles):")
+        print(f"  about the camera's y axis {np.median(yaw):+.3f} +- {bootstrap_median_se(yaw):.3f} deg "
+              f"({np.percentile(yaw, 25):+.2f}, {np.percentile(yaw, 75):+.2f})")
+        print(f"  about the camera's x axis {np.median(pitch):+.3f} +- {bootstrap_median_se(pitch):.3f} deg "
+              f"({np.percentile(pitch, 25):+.2f}, {np.percentile(pitch, 75):+.2f})")
+        print(f"  -> the chain's camera-frame correction D ~ ({dx:+.3f}, {dy:+.3f}, ?) deg about (x, y, z): "
+              f"{np.hypot(dx, dy):.2f} deg without its unseen z part")
     folder = ROOT / "results" / "kitti00_tracks_nll_rotation"
     runs = committed_likelihood_corrections(folder) if folder.exists() else []
     for v in runs:
         print(f"  likelihood, rotation only (results/{folder.name}): D = ({v[0]:+.3f}, {v[1]:+.3f}, {v[2]:+.3f}) deg, "
               f"{np.linalg.norm(v):.2f} deg from the rectified extrinsic; {np.hypot(v[0] - dx, v[1] - dy):.2f} deg "
-              f"from the tracks' estimate in x, y")
+              f"from the pnp estimate in x, y")
 
 
 if __name__ == "__main__":
