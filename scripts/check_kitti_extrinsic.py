@@ -17,7 +17,7 @@ of noise per pair).
 Beside it, the camera-frame correction ``D = R_opt R_rect^T`` of the committed rotation-only
 likelihood runs (results/kitti00_tracks_nll_rotation), so the two can be compared.
 
-    python scripts/check_kitti_extrinsic.py [--data ../shared/data] [--first 15] [--last 153]
+    python scripts/check_kitti_extrinsic.py [--data DIR] [--first 15] [--last 153]
 """
 
 from __future__ import annotations
@@ -105,10 +105,14 @@ def committed_likelihood_corrections(folder: Path) -> list[np.ndarray]:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    parser.add_argument("--data", type=Path, default=None, help="data folder (default: AVIO_DATA or ../shared/data)")
     parser.add_argument("--first", type=int, default=15)
     parser.add_argument("--last", type=int, default=153)
     args = parser.parse_args(argv)
+    if args.data is None:
+        from bench.problems.vio import default_data_dir
+
+        args.data = default_data_dir()
     for method in ("essential", "pnp"):
         d = direction_offsets(args.data, args.first, args.last, method=method)
         yaw, pitch = d[:, 0], d[:, 1]

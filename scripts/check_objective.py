@@ -13,7 +13,10 @@
    their *_rotation variants, which calibrate the rotation alone):
    how far each optimiser's best rotation lies from the rectified KITTI extrinsic (the local
    space's rotation vector is the offset from it), under each objective, and its ray error
-   against the rectified KITTI calibration (avio.calibration_error.ray_error_deg).
+   against the rectified KITTI calibration (avio.calibration_error.ray_error_deg); then how far
+   the rectified extrinsic itself lies from the orientation the tracks imply against the ground
+   truth's calibration chain, and the rotation-only likelihood from that
+   (scripts/check_kitti_extrinsic.py, PnP, frames 15-153).
 """
 
 from __future__ import annotations
@@ -126,6 +129,23 @@ def real_track_rotations() -> None:
         for opt, angles in sorted(by_opt.items()):
             print(f"   {name:>27} ({objective}) {opt:>5}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)});"
                   f" ray error {np.median(rays[opt]):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in rays[opt])})")
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import check_kitti_extrinsic as cke  # scripts/check_kitti_extrinsic.py
+
+    from bench.problems.vio import default_data_dir
+
+    data = default_data_dir()
+    if not (data / "kitti00" / cke.TRACKS_FILE).exists():
+        print(f"   {data / 'kitti00' / cke.TRACKS_FILE}: not found, no check of the rectified extrinsic")
+        return
+    d = cke.direction_offsets(data, 15, 153, method="pnp")
+    dx, dy = -np.median(d[:, 1]), np.median(d[:, 0])
+    print(f"   the tracks against the ground truth's chain (PnP, frames 15-153, {len(d)} pairs): the rectified extrinsic "
+          f"is off by ({dx:+.2f}, {dy:+.2f}, ?) deg, {np.hypot(dx, dy):.2f} deg before its part about the optical axis")
+    for v in cke.committed_likelihood_corrections(ROOT / "results" / "kitti00_tracks_nll_rotation")[:1]:
+        print(f"   the rotation-only likelihood's correction ({v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f}) deg lies "
+              f"{np.hypot(v[0] - dx, v[1] - dy):.2f} deg from it")
+
 
 
 def main() -> None:
