@@ -25,9 +25,16 @@ def so3_log(R: np.ndarray) -> np.ndarray:
 
 def geodesic_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     """Angle of ``R_a^T R_b`` in degrees, (...): the rotation error that does not depend on
-    a parameterisation (PAPER.md §6)."""
-    R_rel = np.swapaxes(np.asarray(R_a, float), -1, -2) @ np.asarray(R_b, float)
-    return np.degrees(np.linalg.norm(so3_log(R_rel), axis=-1))
+    a parameterisation (PAPER.md §6). ``atan2(|vee(R - R^T)| / 2, (tr R - 1) / 2)``: accurate
+    for small angles (where arccos of the trace is not) and equal to ``|so3_log(R)|`` within
+    ~1e-13 deg."""
+    # Written out: scipy's Rotation.from_matrix + as_rotvec cost ~10 ms per call on the
+    # (n, N, 3, 3) attitude errors of a batch (5 % of a default job); this is ~1 ms.
+    R = np.swapaxes(np.asarray(R_a, float), -1, -2) @ np.asarray(R_b, float)
+    sin2 = np.sqrt((R[..., 2, 1] - R[..., 1, 2]) ** 2 + (R[..., 0, 2] - R[..., 2, 0]) ** 2
+                   + (R[..., 1, 0] - R[..., 0, 1]) ** 2)
+    cos2 = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0
+    return np.degrees(np.arctan2(sin2, cos2))
 
 
 def euler_zyx_deg_to_matrix(roll_deg, pitch_deg, yaw_deg) -> np.ndarray:

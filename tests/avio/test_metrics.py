@@ -143,3 +143,18 @@ def test_drift_is_batched_and_non_finite_filters_get_nan():
     assert all(np.isnan(v[2]) for v in batch.values())
     with pytest.raises(MetricsError, match="do not match truth"):
         drift_metrics(p[:, :10], R[:, :10], truth)
+
+
+@pytest.mark.parametrize("angle_rad", [1e-9, 1e-4, 0.3, 2.0, 3.1])
+def test_geodesic_angle_is_the_norm_of_the_rotation_log(angle_rad):
+    from avio.geometry import geodesic_angle_deg, so3_log
+
+    rng = np.random.default_rng(3)
+    A = so3_exp(rng.normal(size=(200, 3)))
+    axis = rng.normal(size=(200, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    B = A @ so3_exp(axis * angle_rad)
+    got = geodesic_angle_deg(A, B)
+    log = np.degrees(np.linalg.norm(so3_log(np.swapaxes(A, -1, -2) @ B), axis=-1))
+    assert np.allclose(got, np.degrees(angle_rad), rtol=1e-9, atol=1e-12)
+    assert np.max(np.abs(got - log) / log) < 1e-12  # the same as scipy's log, to rounding
