@@ -142,8 +142,9 @@ def test_simulated_camera_uses_perturbed_truth_and_is_reproducible(kitti00_dir):
     b = load_kitti00(kitti00_dir, 15, 120, camera="simulated", seed=7, truth_perturbation=pert, max_features=30)
     ref = kitti_2011_10_03_calibration(rectified=True)
     assert a.truth_calibration.fx_px[0] == ref.fx_px[0] + 3.0
+    # rtol: KITTI's rectified R_cam_imu is orthonormal to 1.8e-7 only (7 printed digits)
     np.testing.assert_allclose(geodesic_angle_deg(ref.R_cam_imu[0], a.truth_calibration.R_cam_imu[0]),
-                               np.degrees(0.01), rtol=1e-9)
+                               np.degrees(0.01), rtol=1e-6)
     np.testing.assert_array_equal(a.tracks.uv_px, b.tracks.uv_px)
     assert a.tracks.n_features.min() > 10 and a.tracks.n_features.max() <= 30
     assert a.tracks.uv_px.shape[0] == a.n_frames - 2
@@ -297,8 +298,9 @@ def test_perturbation_zero_is_the_reference_and_rotation_angle_is_its_norm():
     for name in ("fx_px", "cy_px", "R_cam_imu", "p_imu_cam_m", "time_offset_s"):
         np.testing.assert_array_equal(getattr(same, name), getattr(ref, name))
     rot = CalibrationPerturbation(d_rotvec_cam_rad=(0.01, -0.02, 0.005), time_offset_s=0.01).apply(ref)
+    # rtol: KITTI's rectified R_cam_imu is orthonormal to 1.8e-7 only (7 printed digits)
     np.testing.assert_allclose(geodesic_angle_deg(ref.R_cam_imu, rot.R_cam_imu),
-                               np.degrees(np.linalg.norm([0.01, -0.02, 0.005])), rtol=1e-9)
+                               np.degrees(np.linalg.norm([0.01, -0.02, 0.005])), rtol=1e-6)
     assert rot.time_offset_s[0] == pytest.approx(0.01)
 
 
