@@ -369,14 +369,17 @@ def _check_window(first: int, last: int, n_frames: int, source: str) -> None:
 
 
 def read_real_tracks(
-    path: str | Path, first: int, last: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    path: str | Path, first: int, last: int, with_points: bool = False
+) -> tuple[np.ndarray, ...]:
     """Observations of frames first..last from ``VO_stereo_factors00.txt``:
-    ``(frame (m,) int, landmark (m,) int, uv_px (m, 2))`` with uv the left-image (uL, v)."""
+    ``(frame (m,) int, landmark (m,) int, uv_px (m, 2))`` with uv the left-image (uL, v); with
+    ``with_points`` also ``xyz_cam_m (m, 3)``, KITTI's stereo-triangulated point in that frame's
+    cam0 coordinates."""
     rows = read_numeric_table(path, 8)
     frame, landmark = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int64)
     keep = (frame >= first) & (frame <= last)
-    return frame[keep], landmark[keep], rows[keep][:, [2, 4]]
+    out = (frame[keep], landmark[keep], rows[keep][:, [2, 4]])
+    return (*out, rows[keep][:, 5:8]) if with_points else out
 
 
 def load_kitti00(

@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.kitti00 import TRACKS_FILE, read_kitti00, read_numeric_table, read_real_tracks  # noqa: E402
+from avio.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402
 from avio.reference import CX_PX, CY_PX, FX_PX, FY_PX, kitti_2011_10_03_calibration  # noqa: E402
 
 MIN_STEP_M = 0.3  # frame pairs closer than this carry too little translation to read a direction from
@@ -51,10 +51,7 @@ def direction_offsets(data_dir: Path, first: int, last: int, chain_rotation: np.
     points of frame k, triangulated by KITTI, against their pixels in frame k+1: metric, so the
     rotation-translation ambiguity of forward motion cannot bias it)."""
     raw = read_kitti00(data_dir / "kitti00")
-    frame, landmark, uv = read_real_tracks(data_dir / "kitti00" / TRACKS_FILE, first, last)
-    rows = read_numeric_table(data_dir / "kitti00" / TRACKS_FILE, 8)
-    rows = rows[(rows[:, 0] >= first) & (rows[:, 0] <= last)]
-    xyz = rows[:, 5:8]  # the stereo point in its frame's cam0 coordinates (same rows as read_real_tracks)
+    frame, landmark, uv, xyz = read_real_tracks(data_dir / "kitti00" / TRACKS_FILE, first, last, with_points=True)
     K = np.array([[FX_PX, 0.0, CX_PX], [0.0, FY_PX, CY_PX], [0.0, 0.0, 1.0]])
     out = []
     for k in range(first, last):
@@ -80,6 +77,11 @@ def direction_offsets(data_dir: Path, first: int, last: int, chain_rotation: np.
         out.append([np.degrees(np.arctan2(c_vis[0], c_vis[2]) - np.arctan2(c_gt[0], c_gt[2])),
                     np.degrees(np.arctan2(c_vis[1], c_vis[2]) - np.arctan2(c_gt[1], c_gt[2]))])
     return np.array(out)
+
+
+def chain_correction_deg(offsets: np.ndarray) -> tuple[float, float]:
+    """(D_x, D_y) deg, the chain's camera-frame correction, from :func:`direction_offsets`."""
+    return -float(np.median(offsets[:, 1])), float(np.median(offsets[:, 0]))
 
 
 def bootstrap_median_se(x: np.ndarray, n: int = 2000, seed: int = 0) -> float:
@@ -116,7 +118,7 @@ def main(argv=None) -> None:
     for method in ("essential", "pnp"):
         d = direction_offsets(args.data, args.first, args.last, method=method)
         yaw, pitch = d[:, 0], d[:, 1]
-        dy, dx = np.median(yaw), -np.median(pitch)
+        dx, dy = chain_correction_deg(d)
         print(f"frames {args.first}-{args.last}, {method}: {len(d)} frame pairs; visual minus ground-truth translation "
               f"direction (median, bootstrap SE; quartiles):")
         print(f"  about the camera's y axis {np.median(yaw):+.3f} +- {bootstrap_median_se(yaw):.3f} deg "

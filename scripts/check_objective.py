@@ -139,7 +139,7 @@ def real_track_rotations() -> None:
         print(f"   {data / 'kitti00' / cke.TRACKS_FILE}: not found, no check of the rectified extrinsic")
         return
     d = cke.direction_offsets(data, 15, 153, method="pnp")
-    dx, dy = -np.median(d[:, 1]), np.median(d[:, 0])
+    dx, dy = cke.chain_correction_deg(d)
     print(f"   the tracks against the ground truth's chain (PnP, frames 15-153, {len(d)} pairs): the rectified extrinsic "
           f"is off by ({dx:+.2f}, {dy:+.2f}, ?) deg, {np.hypot(dx, dy):.2f} deg before its part about the optical axis")
     for v in cke.committed_likelihood_corrections(ROOT / "results" / "kitti00_tracks_nll_rotation")[:1]:
