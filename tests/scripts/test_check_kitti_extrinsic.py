@@ -3,7 +3,6 @@ calibration chain of the ground truth."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
 from pathlib import Path
 
@@ -17,16 +16,9 @@ pytestmark = pytest.mark.skipif(not (DATA / "kitti00" / "VO_stereo_factors00.txt
                                 reason=f"KITTI 00 tracks not found under {DATA} (set AVIO_DATA)")
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("check_kitti_extrinsic", REPO / "scripts" / "check_kitti_extrinsic.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.parametrize("method", ["essential", "pnp"])
-def test_a_known_turn_of_the_chain_moves_the_estimate_by_minus_that_turn(method):
-    check = _script()
+def test_a_known_turn_of_the_chain_moves_the_estimate_by_minus_that_turn(method, load_script):
+    check = load_script("check_kitti_extrinsic")
     base = np.median(check.direction_offsets(DATA, 15, 153, method=method), axis=0)  # (about y, about x) deg
     for axis, turn in ((1, 0.5), (0, -0.4)):  # camera y (the estimate's first column) and x
         delta = Rotation.from_rotvec(np.radians(turn) * np.eye(3)[axis]).as_matrix()
@@ -37,8 +29,8 @@ def test_a_known_turn_of_the_chain_moves_the_estimate_by_minus_that_turn(method)
 
 
 @pytest.mark.parametrize("method", ["essential", "pnp"])
-def test_the_tracks_say_the_rectified_extrinsic_is_off_about_the_camera_x_axis(method):
-    offsets = _script().direction_offsets(DATA, 15, 153, method=method)
+def test_the_tracks_say_the_rectified_extrinsic_is_off_about_the_camera_x_axis(method, load_script):
+    offsets = load_script("check_kitti_extrinsic").direction_offsets(DATA, 15, 153, method=method)
     assert len(offsets) >= 90
     # ~0.42 deg about x, 6-12 bootstrap SEs (README: "The rectified extrinsic is not the camera's true orientation")
     assert 0.2 < np.median(offsets[:, 1]) < 0.7

@@ -6,7 +6,6 @@ that broke them."""
 from __future__ import annotations
 
 import ast
-import importlib.util
 import re
 import subprocess
 from pathlib import Path
@@ -16,15 +15,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _script(name: str):
-    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles():
-    prof = _script("profile_kernel")
+def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles(load_script):
+    prof = load_script("profile_kernel")
     patched = prof.patch_kernels((REPO / "avio" / "_kernels.py").read_text())
     ast.parse(patched)  # valid Python
     for i in range(len(prof.PHASES)):
@@ -32,16 +24,16 @@ def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles():
     ast.parse(prof.patch_filter((REPO / "avio" / "filter.py").read_text()))
 
 
-def test_a_changed_kernel_is_a_clear_error_naming_the_anchor():
-    prof = _script("profile_kernel")
+def test_a_changed_kernel_is_a_clear_error_naming_the_anchor(load_script):
+    prof = load_script("profile_kernel")
     with pytest.raises(SystemExit, match="anchor not found"):
         prof.patch_kernels("def nothing():\n    pass\n")
 
 
-def test_the_base_package_imports_only_itself(tmp_path, monkeypatch):
+def test_the_base_package_imports_only_itself(tmp_path, monkeypatch, load_script):
     if subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True).returncode != 0:
         pytest.skip("not a git checkout")
-    ab = _script("ab_kernel")
+    ab = load_script("ab_kernel")
     monkeypatch.setattr(ab.tempfile, "gettempdir", lambda: str(tmp_path))
     pkg = ab.extract_base("HEAD") / "avio_base"
     sources = {p.name: p.read_text() for p in pkg.glob("*.py")}

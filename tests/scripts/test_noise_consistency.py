@@ -2,16 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-REPO = Path(__file__).resolve().parents[2]
 
 
-def test_the_simulated_noise_is_consistent_and_a_too_wide_one_is_not(capsys):
-    spec = importlib.util.spec_from_file_location("noise_consistency", REPO / "scripts" / "noise_consistency.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+def test_the_simulated_noise_is_consistent_and_a_too_wide_one_is_not(capsys, load_script):
+    module = load_script("noise_consistency")
     module.main(["--problem", "synthetic", "--sigmas", "0.7", "2.1", "--imu-scales", "1.0", "--threads", "1",
                  "problem.params.holdout=null"])
     rows = [line.split() for line in capsys.readouterr().out.splitlines()[2:]]
