@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 
-
 def test_the_simulated_noise_is_consistent_and_a_too_wide_one_is_not(capsys, load_script):
     module = load_script("noise_consistency")
     module.main(["--problem", "synthetic", "--sigmas", "0.7", "2.1", "--imu-scales", "1.0", "--threads", "1",
