@@ -7,7 +7,8 @@
    (a parabola through the three lowest grid points, the others at the truth).
 2. Consistency at the truth on ``synthetic`` (default noise): NIS per degree of freedom of the
    updates and the median position NEES (per-axis, with the filter's own sigmas), per seed.
-3. Truth against the reference over ``--seeds`` data seeds, under each objective.
+3. Truth against the reference over ``--seeds`` data seeds, under each objective; where the
+   reference wins, its ray error there against where it loses (one-sided Mann-Whitney).
 4. When ``results/identifiability/summary.csv`` exists: the identifiability study's table.
 5. When the committed all-real sweeps exist (results/kitti00_tracks, results/kitti00_tracks_nll, and
    their *_rotation variants, which calibrate the rotation alone):
@@ -31,6 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from avio.calibration_error import ray_error_deg  # noqa: E402
 from avio.objectives import OBJECTIVES  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 
@@ -65,12 +67,30 @@ def perfect_data(points: int) -> None:
         print(f"   {n:>5}: profile minimum {at:+.4f} {unit} from the truth (rise over +-{HALF[n]} {unit}: {rise:.4f} m)")
 
 
+def losers_by_ray_error(truth_better: np.ndarray, ray_deg: np.ndarray) -> dict:
+    """Do the seeds where the reference beats the truth have a reference that casts nearly the
+    truth's rays? truth_better (n,) bool, ray_deg (n,) the reference's ray error per seed:
+    the losing seeds, the median ray error of the winning ones and the one-sided Mann-Whitney
+    p-value of "the losers' ray errors are smaller" (None when either group is empty)."""
+    truth_better, ray_deg = np.asarray(truth_better, bool), np.asarray(ray_deg, float)
+    lost = np.flatnonzero(~truth_better)
+    p = None
+    if 0 < len(lost) < len(ray_deg):
+        from scipy.stats import mannwhitneyu
+
+        p = float(mannwhitneyu(ray_deg[lost], ray_deg[truth_better], alternative="less").pvalue)
+    won = ray_deg[truth_better]
+    return {"lost": lost, "lost_ray_deg": ray_deg[lost], "won_median_ray_deg": float(np.median(won)) if len(won) else None,
+            "p": p}
+
+
 def consistency_and_ranking(seeds: int) -> None:
-    rows = []
+    rows, rays = [], []
     for seed in range(seeds):
         problem = Synthetic(holdout=None, data_seed=seed)
-        cal = problem.sequence.truth_calibration
-        anchors = type(cal).stack([cal, problem.sequence.reference_calibration])
+        cal, ref = problem.sequence.truth_calibration, problem.sequence.reference_calibration
+        anchors = type(cal).stack([cal, ref])
+        rays.append(float(ray_error_deg(ref, cal, problem.sequence.image_size_px)[0]))
         result = problem.run_filter(anchors)
         err = result.p_world_imu_m[0] - problem.sequence.truth.p_world_imu_m
         nees = float(np.median(np.sum((err / result.sigma[0, :, :3]) ** 2, axis=1)))
@@ -89,6 +109,11 @@ def consistency_and_ranking(seeds: int) -> None:
         print(f"   {OBJECTIVES[j]:>14}: truth better in {wins}/{seeds} seeds; "
               f"median truth {np.median(truth):.4f}, reference {np.median(ref):.4f}, paired difference "
               f"{np.median(ref - truth):+.4f}")
+        s = losers_by_ray_error(truth < ref, np.array(rays))
+        if s["p"] is not None:
+            print(f"   {'':>14}  lost in seeds {', '.join(map(str, s['lost']))}, where the reference's ray error is "
+                  f"{', '.join(f'{r:.2f}' for r in s['lost_ray_deg'])} deg against a median {s['won_median_ray_deg']:.2f} deg "
+                  f"where the truth wins (one-sided Mann-Whitney p = {s['p']:.3f})")
 
 
 def identifiability_summary() -> None:
@@ -105,7 +130,6 @@ def identifiability_summary() -> None:
 def real_track_rotations() -> None:
     import json
 
-    from avio.calibration_error import ray_error_deg
     from bench.job import build_problem
 
     print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
