@@ -35,6 +35,9 @@ GRAVITY_MPS2 = 9.81
 # rad/s, from second differences of KittiEquivBiasedImu.txt). These are ImuNoise()'s defaults.
 OXTS_IMU_NOISE = ImuNoise()
 _STREAMS = ("trajectory", "calibration", "imu", "landmarks", "tracks", "render")
+#: The streams a ``noise_seed`` replaces: IMU noise and bias realisations; pixel noise, outliers
+#: and which landmarks the front end keeps. The trajectory, the world and the camera stay.
+NOISE_STREAMS = ("imu", "tracks")
 
 
 class SimulatorError(ValueError):
@@ -201,10 +204,14 @@ def _initial_bias(value, sigma: float, on: bool, rng: np.random.Generator) -> np
 
 
 def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,
-                   true_calibration: Calibration | None = None) -> tuple[Sequence, SimWorld]:
+                   true_calibration: Calibration | None = None,
+                   noise_seed: int | tuple[int, ...] | None = None) -> tuple[Sequence, SimWorld]:
     """``simulate`` plus the hidden truth (SimWorld) behind the sequence."""
     config.validate()
     streams = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS))))
+    if noise_seed is not None:  # another measurement realisation of the same world and trajectory
+        noise = dict(zip(_STREAMS, np.random.SeedSequence(noise_seed).spawn(len(_STREAMS))))
+        streams.update({k: noise[k] for k in NOISE_STREAMS})
     rngs = {k: np.random.default_rng(v) for k, v in streams.items()}
     trajectory = make_trajectory(
         config.trajectory, config.duration_s, config.speed_mps,
@@ -236,7 +243,11 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
     config_dict = asdict(config)
     seed_value = int(seed) if np.ndim(seed) == 0 else [int(v) for v in seed]
+    noise_value = None if noise_seed is None else (int(noise_seed) if np.ndim(noise_seed) == 0
+                                                    else [int(v) for v in noise_seed])
     extra = {"config": config_dict, "seed": seed_value}
+    if noise_value is not None:  # absent otherwise, so the hashes of existing drives stay
+        extra["noise_seed"] = noise_value
     if config.output == "images":
         from avio.render import RENDER_VERSION, render_frames  # OpenCV only when rendering
 
@@ -251,7 +262,8 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
             Path(image_dir) / f"sim_{data_hash[:16]}", rngs["render"],
         )
     sequence = Sequence(
-        name=f"sim_{config.trajectory}_{'_'.join(map(str, np.atleast_1d(seed_value)))}",
+        name=f"sim_{config.trajectory}_{'_'.join(map(str, np.atleast_1d(seed_value)))}"
+             + ("" if noise_value is None else f"_noise_{'_'.join(map(str, np.atleast_1d(noise_value)))}"),
         imu=imu,
         frame_t_s=frame_t,
         truth=truth,
@@ -266,6 +278,7 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
             "source": "avio.simulator",
             "config": config_dict,
             "seed": seed_value,
+            **({} if noise_value is None else {"noise_seed": noise_value}),
             "truth_calibration_given": true_calibration is not None,
             "content_hash": data_hash,
             "true_accel_bias0_mps2": b_a0.tolist(),
@@ -277,7 +290,7 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
 
 
 def simulate(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,
-             true_calibration: Calibration | None = None) -> Sequence:
+             true_calibration: Calibration | None = None, noise_seed: int | tuple[int, ...] | None = None) -> Sequence:
     """A simulated drive: a pure function of (config, seed[, truth]).
 
     seed: an int or a tuple of ints (numpy SeedSequence entropy; e.g. ``(data_seed, drive)``
@@ -287,5 +300,8 @@ def simulate(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Pa
     true_calibration: the camera's true calibration (batch of 1); None draws it from the seed and
     ``config.calibration_error``. Give the calibration drive's truth to simulate another drive
     (independent world, noise and biases) of the same camera.
+    noise_seed: None, or the entropy of the measurement streams (NOISE_STREAMS): the same
+    trajectory, world and camera as ``seed`` gives, with independent IMU noise and biases, pixel
+    noise, outliers and feature selection (a noise realisation of that drive).
     """
-    return simulate_world(config, seed, image_dir, true_calibration)[0]
+    return simulate_world(config, seed, image_dir, true_calibration, noise_seed)[0]

@@ -1,5 +1,5 @@
 """Summarise the identifiability study (scripts/make_identifiability.sh): per configuration
-(objective x drives x free variables), the calibrated camera's errors against the truth and the
+(objective x drives x noise realisations x free variables), the calibrated camera's errors against the truth and the
 held-out RMSE at the calibrated and at the reference calibration, medians over the seeds.
 
     python scripts/identifiability.py results/identifiability
@@ -43,7 +43,8 @@ def load(folder: Path) -> pd.DataFrame:
             continue
         params = record["config"]["problem"]["params"]
         rows.append({"config": path.relative_to(folder).parts[0], "objective": params["objective"],
-                     "drives": len(params["drives"]), "free": len(record["best_x"]), "seed": record["seed"],
+                     "drives": len(params["drives"]), "noise_realisations": params.get("noise_realisations", 1),
+                     "free": len(record["best_x"]), "seed": record["seed"],
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
                      "best_f": record["best_f"], **{k: record["best_metrics"][k] for k in ERRORS}})
     if not rows:
@@ -83,8 +84,9 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
 
 def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
-    for (objective, drives, free), g in runs.groupby(["objective", "drives", "free"], sort=False):
-        row = {"objective": objective, "drives": drives, "free": free, "seeds": len(g)}
+    for (objective, drives, noise, free), g in runs.groupby(["objective", "drives", "noise_realisations", "free"],
+                                                            sort=False):
+        row = {"objective": objective, "drives": drives, "noise_realisations": noise, "free": free, "seeds": len(g)}
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
             row[f"reference_{k}"] = g[f"reference_{k}"].median()
@@ -104,7 +106,8 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(13, 3.8))
-    labels = [f"{r.objective}\n{r.drives} drive(s), {r.free} free" for r in summary.itertuples()]
+    labels = [f"{r.objective}\n{r.drives} drive(s){f' x {r.noise_realisations} noise' if r.noise_realisations > 1 else ''}, "
+              f"{r.free} free" for r in summary.itertuples()]
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",
               "ray error (deg)")
     for ax, k, title in zip(fig.subplots(1, 5), ERRORS + ("ray_error_deg",), titles):

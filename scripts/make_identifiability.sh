@@ -4,7 +4,9 @@
 # sweeps) on `synthetic` in the local space, for each objective x {1, 4 drives} x {10 free,
 # 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus both objectives
 # with 16 drives and 7 free (does the error keep shrinking as 1/sqrt(drives)?) and with 4 drives
-# and 5 free (the principal point frozen too: it trades against the rotation), seeds 0-4 (the
+# and 5 free (the principal point frozen too: it trades against the rotation), and with one drive in
+# four noise realisations, 7 free (same world and trajectory, independent noise: does averaging the
+# noise alone do what four drives do?), seeds 0-4 (the
 # optimiser's seed is also the data seed: five cameras, five noise realisations). Then the
 # summary table and figure (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
@@ -22,7 +24,7 @@ for objective in position_rmse innovation_nll; do
   done
 done
 all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free position_rmse_fourdrive_5free
-      innovation_nll_fourdrive_5free)
+      innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -30,7 +32,8 @@ for name in "$@"; do
   objective=${name%_*drive_*free}
   rest=${name#"${objective}_"}
   case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
-  free=${rest#*drive_}; free=${free%free}
+  free=${name##*_}; free=${free%free}
+  noise=1; [[ $rest == *_fournoise_* ]] && noise=4
   d="[$(printf 'paper_540m,%.0s' $(seq "$n"))]"; d=${d/,]/]}
   extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
@@ -38,7 +41,7 @@ for name in "$@"; do
   start=$(date -u +%s)
   python -m bench problem=synthetic optimizer=cmaes seed='range(5)' budget.evals="$evals" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
-    'problem.params.data_seed=${seed}' "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done

@@ -5,7 +5,10 @@ error) and the first calibration drive. Every further drive, and the held-out dr
 *same camera* with an independent world, trajectory, IMU noise and bias realisation (simulator
 seed ``(data_seed, i)``, ``(data_seed, 1000)`` for the held-out drive), so that summing the
 objective over drives averages out noise, and the held-out drive tests the calibration rather
-than another camera.
+than another camera. ``noise_realisations`` K > 1 adds, for each calibration drive, K - 1 noise
+realisations of it: the same world and trajectory with independent IMU noise and biases, pixel
+noise, outliers and feature selection (simulator noise seed ``(data_seed, i, 2000, r)``), so
+that averaging the noise alone can be told from averaging the drives' geometry too.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
 
 PRESETS = ("paper_540m", "paper_928m")
 HOLDOUT_SEED = 1000  # second entropy word of the held-out drive's seed: no calibration drive uses it
+NOISE_WORD = 2000  # third entropy word of a noise realisation's seed (4 words: no drive's seed has as many)
 
 
 def _sim_config(drive: str, sim: dict | None):
@@ -43,17 +47,21 @@ class SyntheticParams(VioParams):
     """drives: the calibration drives (presets of avio.simulator.SimConfig: paper_540m = ~540 m
     in 78 s, flat city with a stop; paper_928m = ~928 m in 115 s with hills), all of one camera;
     holdout: the held-out preset or None; data_seed: the camera and the drives (>= 0);
-    sim: SimConfig overrides for every drive, e.g. {pixel_noise_px: 1.0}."""
+    sim: SimConfig overrides for every drive, e.g. {pixel_noise_px: 1.0}; noise_realisations:
+    each calibration drive in this many noise realisations (>= 1; module docstring)."""
 
     space: str = "paper"
     drives: tuple[str, ...] = ("paper_540m",)
     holdout: str | None = "paper_928m"
     data_seed: int = 0
     sim: dict | None = None
+    noise_realisations: int = 1
 
     def validate(self) -> None:
         if self.data_seed < 0:
             raise ProblemError(f"data_seed = {self.data_seed}: must be >= 0")
+        if self.noise_realisations < 1:
+            raise ProblemError(f"noise_realisations = {self.noise_realisations}: must be >= 1")
         if not self.drives:
             raise ProblemError("drives: at least one calibration drive")
         for name in self.drives + ((self.holdout,) if self.holdout else ()):
@@ -68,8 +76,11 @@ class SyntheticParams(VioParams):
 
         first = simulate(_sim_config(self.drives[0], self.sim), self.data_seed)
         camera = first.truth_calibration
-        more = [simulate(_sim_config(name, self.sim), (self.data_seed, i), true_calibration=camera)
-                for i, name in enumerate(self.drives) if i > 0]
+        seeds = [self.data_seed] + [(self.data_seed, i) for i in range(1, len(self.drives))]
+        more = [simulate(_sim_config(name, self.sim), seed, true_calibration=camera,
+                         noise_seed=None if r == 0 else (self.data_seed, i, NOISE_WORD, r))
+                for i, (name, seed) in enumerate(zip(self.drives, seeds))
+                for r in range(self.noise_realisations) if i > 0 or r > 0]
         held: Sequence | None = None
         if self.holdout:
             held = simulate(_sim_config(self.holdout, self.sim), (self.data_seed, HOLDOUT_SEED),

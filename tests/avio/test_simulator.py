@@ -110,6 +110,26 @@ def test_same_seed_gives_the_identical_sequence_and_another_seed_does_not():
     assert not np.allclose(a.truth_calibration.fx_px, c.truth_calibration.fx_px)
 
 
+def test_a_noise_seed_keeps_the_world_and_redraws_only_the_measurements():
+    cfg = SimConfig.paper_540m(duration_s=20.0)
+    a, worlds = simulate(cfg, 5), [simulate_world(cfg, 5, noise_seed=s) for s in ((5, 0, 1), (5, 0, 2))]
+    (b, world_b), (c, _) = worlds
+    np.testing.assert_array_equal(a.truth.p_world_imu_m, b.truth.p_world_imu_m)  # the same drive
+    np.testing.assert_array_equal(a.truth.R_world_imu, b.truth.R_world_imu)
+    np.testing.assert_array_equal(simulate_world(cfg, 5)[1].landmarks_world, world_b.landmarks_world)
+    for key in ("fx_px", "cx_px", "R_cam_imu", "p_imu_cam_m"):  # and the same camera
+        np.testing.assert_array_equal(getattr(a.truth_calibration, key), getattr(b.truth_calibration, key))
+    for x, y in ((a, b), (b, c)):  # but other IMU noise and biases, pixel noise and features
+        assert not np.allclose(x.imu.gyro_imu_radps, y.imu.gyro_imu_radps)
+        assert x.meta["true_gyro_bias0_radps"] != y.meta["true_gyro_bias0_radps"]
+        assert not np.array_equal(x.tracks.uv_px, y.tracks.uv_px)
+        assert x.meta["content_hash"] != y.meta["content_hash"] and x.name != y.name
+    assert b.meta["noise_seed"] == [5, 0, 1] and "noise_seed" not in a.meta
+    again = simulate(cfg, 5, noise_seed=(5, 0, 1))
+    assert again.meta["content_hash"] == b.meta["content_hash"]
+    np.testing.assert_array_equal(again.tracks.uv_px, b.tracks.uv_px)
+
+
 def test_camera_settings_do_not_change_the_trajectory_or_the_imu():
     cfg = SimConfig.paper_540m(duration_s=20.0)
     a, b = simulate(cfg, 5), simulate(replace(cfg, pixel_noise_px=2.0, max_features=10), 5)

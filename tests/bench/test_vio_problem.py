@@ -149,6 +149,22 @@ def test_holdout_drive_has_the_same_camera_and_independent_noise():
     assert other.drives[1].meta["content_hash"] != a.meta["content_hash"]
 
 
+def test_noise_realisations_repeat_each_drive_with_independent_noise_only():
+    problem = Synthetic(drives=["paper_540m", "paper_540m"], holdout=None, noise_realisations=2, sim=SHORT["sim"])
+    d0, d0_noise, d1, d1_noise = problem.drives
+    alone = Synthetic(drives=["paper_540m", "paper_540m"], holdout=None, sim=SHORT["sim"])
+    assert [d0.meta["content_hash"], d1.meta["content_hash"]] == [s.meta["content_hash"] for s in alone.drives]
+    for drive, noisy in ((d0, d0_noise), (d1, d1_noise)):  # the same drive, another realisation of its noise
+        np.testing.assert_array_equal(drive.truth.p_world_imu_m, noisy.truth.p_world_imu_m)
+        assert not np.array_equal(drive.imu.gyro_imu_radps, noisy.imu.gyro_imu_radps)
+        assert not np.array_equal(drive.tracks.uv_px, noisy.tracks.uv_px)
+        np.testing.assert_array_equal(drive.truth_calibration.R_cam_imu, noisy.truth_calibration.R_cam_imu)
+    assert not np.allclose(d0.truth.p_world_imu_m[-1], d1.truth.p_world_imu_m[-1])
+    assert len({s.name for s in problem.drives}) == 4
+    with pytest.raises(ProblemError, match="noise_realisations = 0: must be >= 1"):
+        Synthetic.preflight(noise_realisations=0)
+
+
 def test_only_the_problems_own_drives_keep_their_preparation(problem):
     # the cache is keyed by id(sequence): a sequence the problem does not hold could be freed
     # and its id reused by another, so it is prepared afresh every time
