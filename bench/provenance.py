@@ -13,13 +13,15 @@ _PACKAGES = ("numpy", "numba", "scipy", "pandas", "hydra-core", "omegaconf", "py
              "nevergrad", "opencv-python-headless", "matplotlib", "tqdm")
 
 
-def _git_commit() -> str:
-    root = Path(__file__).resolve().parents[1]
+def _git_commit(root: Path = Path(__file__).resolve().parents[1]) -> str:
+    """HEAD's commit, with "-dirty" when a tracked file outside results/ differs from it. The
+    committed results are outputs, not code: a sweep made while an earlier one's records or
+    provenance lines are not yet committed (scripts/make_results.sh) is still made by HEAD."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
                                 text=True, timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, timeout=5).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+                                ":(exclude)results"], cwd=root, capture_output=True, text=True, timeout=5).stdout.strip()
         return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
