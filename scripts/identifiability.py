@@ -104,20 +104,25 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
 
 def figure(summary: pd.DataFrame, path: Path) -> None:
     from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
-    fig = Figure(figsize=(13, 3.8))
-    labels = [f"{r.objective}\n{r.drives} drive(s){f' x {r.noise_realisations} noise' if r.noise_realisations > 1 else ''}, "
-              f"{r.free} free" for r in summary.itertuples()]
+    colours = {"position_rmse": "tab:blue", "innovation_nll": "tab:orange"}
+    # one short line per bar: drives (x noise realisations), free variables; colour: objective
+    labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
+              for r in summary.itertuples()]
+    fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",
               "ray error (deg)")
     for ax, k, title in zip(fig.subplots(1, 5), ERRORS + ("ray_error_deg",), titles):
-        ax.bar(range(len(summary)), summary[k], color="tab:blue")
-        ax.axhline(summary[f"reference_{k}"].median(), color="tab:red", ls="--", label="reference")
+        ax.bar(range(len(summary)), summary[k], color=[colours.get(o, "tab:gray") for o in summary.objective])
+        ax.axhline(summary[f"reference_{k}"].median(), color="tab:red", ls="--")
         ax.set_xticks(range(len(summary)), labels, rotation=90, fontsize=6)
         ax.set_title(title, fontsize=8)
-        ax.legend(fontsize=6)
+    handles = [Patch(color=c, label=o) for o, c in colours.items() if o in set(summary.objective)]
+    handles.append(Patch(color="tab:red", label="reference"))
+    fig.legend(handles=handles, loc="upper right", fontsize=7, ncol=len(handles))
     fig.suptitle("Calibration error of CMA-ES's best point, median over seeds (synthetic, local space)", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(path, dpi=150)
     fig.savefig(path.with_suffix(".pdf"))
 
