@@ -203,6 +203,11 @@ def _initial_bias(value, sigma: float, on: bool, rng: np.random.Generator) -> np
     return draw if on else np.zeros(3)
 
 
+def _plain_seed(seed: int | tuple[int, ...]) -> int | list[int]:
+    """The seed as JSON-ready ints (for the meta, the name and the content hash)."""
+    return int(seed) if np.ndim(seed) == 0 else [int(v) for v in seed]
+
+
 def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,
                    true_calibration: Calibration | None = None,
                    noise_seed: int | tuple[int, ...] | None = None) -> tuple[Sequence, SimWorld]:
@@ -242,9 +247,8 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
         )
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
     config_dict = asdict(config)
-    seed_value = int(seed) if np.ndim(seed) == 0 else [int(v) for v in seed]
-    noise_value = None if noise_seed is None else (int(noise_seed) if np.ndim(noise_seed) == 0
-                                                    else [int(v) for v in noise_seed])
+    seed_value = _plain_seed(seed)
+    noise_value = None if noise_seed is None else _plain_seed(noise_seed)
     extra = {"config": config_dict, "seed": seed_value}
     if noise_value is not None:  # absent otherwise, so the hashes of existing drives stay
         extra["noise_seed"] = noise_value
