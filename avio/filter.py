@@ -504,12 +504,12 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
             c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
             out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
             out_slots)
-    # The kernel releases the GIL: contiguous ranges of the batch run on threads at once, each
-    # filter on one thread (numba prange was tried: +41 s, +31 %, on the first compile). Four
-    # ranges per thread, taken as threads come free: filters that diverge early stop early.
+    # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
+    # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per
+    # filter, taken as threads come free, since filters that diverge early stop early: on a
+    # default job's batches four ranges per thread idled a thread for ~10 % of the time
+    # (`python scripts/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
-    n_ranges = min(n, 4 * n_threads) if n_threads > 1 else 1
-    bounds = [i * n // n_ranges for i in range(n_ranges + 1)]
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
@@ -517,7 +517,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
             _kernels.run_filters(0, n, *args)
         else:
             with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
-                jobs = [pool.submit(_kernels.run_filters, lo, hi, *args) for lo, hi in zip(bounds[:-1], bounds[1:])]
+                jobs = [pool.submit(_kernels.run_filters, i, i + 1, *args) for i in range(n)]
                 for job in jobs:
                     job.result()
     return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,

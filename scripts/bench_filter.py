@@ -5,6 +5,7 @@
     python scripts/bench_filter.py speed [--batches 1 8 64 256] [--threads 1 2] [--repeats 5]
                                          [--skip scaling harness job compile]
     python scripts/bench_filter.py profile [--batch 64]
+    python scripts/bench_filter.py schedule [--evals JOB/evals.jsonl]
 
 accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the truth calibration
     on the simulated paper drives (avio.simulator, SimConfig.paper_540m / paper_928m) and on the
@@ -19,6 +20,11 @@ speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) f
     wall time (psoga, 500 evaluations on ``synthetic``) and the first-run compile time (a
     subprocess with an empty NUMBA_CACHE_DIR).
 profile: cProfile of one batch, top functions by own time.
+schedule: how the batch is split over two threads: the batches a default job asked (psoga seed 0
+    on ``synthetic``, run first unless --evals names a job's evals.jsonl) replayed filter by
+    filter on one thread, and the two-thread time each split would take from those times (one
+    task per filter, as avio.filter runs them; four contiguous ranges per thread, as it did),
+    beside the ideal and the measured two-thread time.
 The data folder is --data (default ../shared/data relative to the repository root).
 """
 
@@ -270,9 +276,58 @@ def profile(args, config: FilterConfig) -> None:
     pstats.Stats(prof).sort_stats("tottime").print_stats(20)
 
 
+def _makespan(costs, bounds, n_threads: int = 2) -> float:
+    """Wall time of tasks [bounds[i], bounds[i+1]) taken in order by whichever thread is free."""
+    import heapq
+
+    free = [0.0] * n_threads
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        heapq.heappush(free, heapq.heappop(free) + sum(costs[lo:hi]))
+    return max(free)
+
+
+def schedule(args) -> None:
+    import json
+
+    from bench.problems.synthetic import Synthetic
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(args.evals) if args.evals else Path(tmp) / "sweep" / "synthetic" / "psoga" / "seed0" / "evals.jsonl"
+        if not args.evals:
+            _subprocess_s([sys.executable, "-m", "bench", "optimizer=psoga", "seed=0", "report=false",
+                           f"hydra.sweep.dir={tmp}/sweep"])
+        batches = [np.asarray(json.loads(line)["X"], float) for line in path.read_text().splitlines()]
+    problem = Synthetic(holdout=None, space="paper", filter=_parse_set(args.set) or None)  # the default job's problem
+    totals = dict.fromkeys(("one filter", "one task per filter", "four ranges per thread", "ideal", "measured"), 0.0)
+    for X in batches:
+        cal = problem.calibration_space.decode(problem.space.check(X))
+        set_threads(1)
+        costs = []
+        for i in range(len(X)):
+            t0 = time.perf_counter()
+            problem.run_filter(cal[i:i + 1])
+            costs.append(time.perf_counter() - t0)
+        n, k = len(costs), min(len(costs), 8)
+        totals["one filter"] += sum(costs)
+        totals["one task per filter"] += _makespan(costs, range(n + 1))
+        totals["four ranges per thread"] += _makespan(costs, [i * n // k for i in range(k + 1)])
+        totals["ideal"] += max(sum(costs) / 2, max(costs))
+        set_threads(2)
+        t0 = time.perf_counter()
+        problem.run_filter(cal)
+        totals["measured"] += time.perf_counter() - t0
+    set_threads(None)
+    print(f"default job's {len(batches)} batches of {len(batches[0])} (psoga seed 0, synthetic): one filter at a time "
+          f"{totals['one filter']:.2f} s; on 2 threads, from those times: one task per filter (avio.filter) "
+          f"{totals['one task per filter']:.2f} s, four ranges per thread {totals['four ranges per thread']:.2f} s "
+          f"({totals['four ranges per thread'] / totals['one task per filter']:.3f}x), ideal {totals['ideal']:.2f} s; "
+          f"measured on 2 threads {totals['measured']:.2f} s")
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=("accuracy", "outliers", "speed", "profile"))
+    p.add_argument("what", choices=("accuracy", "outliers", "speed", "profile", "schedule"))
+    p.add_argument("--evals", help="schedule: a job's evals.jsonl (default: run the default job first)")
     p.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--sequences", nargs="+", default=["sim540", "kitti540", "sim928", "kitti928"])
@@ -295,6 +350,8 @@ def main(argv=None) -> None:
             accuracy(args, replace(config, outlier_rejection=mode), label=f"[{mode:11s}] ")
     elif args.what == "speed":
         speed(args, config)
+    elif args.what == "schedule":
+        schedule(args)
     else:
         profile(args, config)
 
