@@ -18,12 +18,14 @@ deterministic tilt, along fy").
 
     python scripts/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
         [--step 0.5] [--filter '{"imu_noise_scale": 1.4}'] [--sim '{"gyro_bias_radps": [0, 0, 0]}']
+        [--imu-scale 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import fields
 import sys
 import time
 from pathlib import Path
@@ -35,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from avio.filter import set_threads  # noqa: E402
+from avio.sequence import ImuNoise  # noqa: E402
 from avio.objectives import scored_frames  # noqa: E402
 from avio.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
@@ -76,6 +79,11 @@ def slopes(noise: str, n_drives: int, var: str, step: float, filter_overrides: d
     return {k: np.array(v) for k, v in out.items()}
 
 
+def scaled_imu_noise(scale: float) -> ImuNoise:
+    """The simulator's default ImuNoise with every density times ``scale``."""
+    return ImuNoise(**{f.name: scale * getattr(ImuNoise(), f.name) for f in fields(ImuNoise)})
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--noise", choices=list(NOISE), default="default")
@@ -86,13 +94,19 @@ def main(argv=None) -> None:
     parser.add_argument("--sim", type=json.loads, default=None,
                         help='SimConfig overrides as JSON, e.g. \'{"gyro_bias_radps": [0, 0, 0]}\'')
     parser.add_argument("--tie-focal", action="store_true", help="fy = fx (the problem's tie_focal); --var fx is then both")
+    parser.add_argument("--imu-scale", type=float, default=1.0,
+                        help="multiply the simulated IMU noise densities (the filter's process noise follows: it "
+                             "takes the drive's ImuNoise)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     args = parser.parse_args(argv)
     set_threads(2)
     start = time.perf_counter()
-    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds, args.sim, args.tie_focal)
+    sim = dict(args.sim or {})
+    if args.imu_scale != 1.0:
+        sim["imu_noise"] = scaled_imu_noise(args.imu_scale)
+    result = slopes(args.noise, args.drives, args.var, args.step, args.filter, args.seeds, sim or None, args.tie_focal)
     n = len(result["joint"])
-    print(f"{args.noise}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
+    print(f"{args.noise}, sim {args.sim or 'default'}, IMU noise x{args.imu_scale:g}, filter {args.filter or 'default'}: slope along {args.var} at the truth per unit, "
           f"mean over {n} drives +- SE (t) ({time.perf_counter() - start:.0f} s)")
     for k in PARTS:
         m, se = mean_se(result[k])
