@@ -85,6 +85,8 @@ def losers_by_ray_error(truth_better: np.ndarray, ray_deg: np.ndarray) -> dict:
 
 
 def consistency_and_ranking(seeds: int) -> None:
+    from scipy.stats import chi2
+
     rows, rays = [], []
     for seed in range(seeds):
         problem = Synthetic(holdout=None, data_seed=seed)
@@ -100,7 +102,8 @@ def consistency_and_ranking(seeds: int) -> None:
     nis = np.array([r[1] for r in rows])
     nees = np.array([r[2] for r in rows])
     print(f"   NIS/dof median {np.median(nis):.3f} (range {nis.min():.3f}-{nis.max():.3f}); "
-          f"position NEES median over seeds {np.median(nees):.2f} (range {nees.min():.2f}-{nees.max():.2f}; 3 expected)")
+          f"position NEES median over seeds {np.median(nees):.2f} (range {nees.min():.2f}-{nees.max():.2f}; "
+          f"{chi2.median(3):.2f} expected: the median of chi-square with 3 degrees of freedom, whose mean is 3)")
     print(f"3. truth against reference over {seeds} data seeds:")
     for j, name in enumerate(("position_rmse_m", "innovation_nll")):
         truth = np.array([r[3 + j][0] for r in rows])

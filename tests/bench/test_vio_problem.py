@@ -233,7 +233,9 @@ def test_perfect_data_on_the_default_drive_with_its_stop_scores_zero_at_the_trut
 
 @pytest.mark.slow
 def test_the_filter_is_consistent_at_the_truth():
-    """NIS per degree of freedom ~1 and position NEES ~3 at the truth on the default drive."""
+    """NIS per degree of freedom ~1 and a median position NEES within (0.5, 6) at the truth on
+    the default drive (a consistent filter's per-frame NEES is chi-square with 3 degrees of
+    freedom: median 2.37; one drive's errors are correlated in time, so its median scatters)."""
     problem = Synthetic(holdout=None)
     cal = problem.sequence.truth_calibration
     result = problem.run_filter(cal)
@@ -241,7 +243,7 @@ def test_the_filter_is_consistent_at_the_truth():
     assert 0.9 <= nis_per_dof <= 1.1
     err = result.p_world_imu_m[0] - problem.sequence.truth.p_world_imu_m
     nees = np.sum((err / result.sigma[0, :, :3]) ** 2, axis=1)
-    assert np.median(nees) <= 6.0
+    assert 0.5 <= np.median(nees) <= 6.0  # neither overconfident nor grossly conservative
 
 
 @pytest.mark.slow
