@@ -84,9 +84,10 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
 
 def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
-    for (objective, drives, noise, free), g in runs.groupby(["objective", "drives", "noise_realisations", "free"],
-                                                            sort=False):
-        row = {"objective": objective, "drives": drives, "noise_realisations": noise, "free": free, "seeds": len(g)}
+    for _, g in runs.groupby("config", sort=False):  # one configuration per folder (which variables are free, too)
+        first = g.iloc[0]
+        row = {"objective": first.objective, "drives": first.drives, "noise_realisations": first.noise_realisations,
+               "free": first.free, "seeds": len(g)}
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
             row[f"reference_{k}"] = g[f"reference_{k}"].median()
