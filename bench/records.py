@@ -24,10 +24,9 @@ import json
 import os
 import socket
 import tempfile
+import typing
 from datetime import datetime, timezone
 from pathlib import Path
-
-import typing
 
 import numpy as np
 import orjson
