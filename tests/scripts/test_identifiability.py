@@ -35,3 +35,16 @@ def test_each_folder_is_a_row_and_says_whether_the_optimiser_reached_the_truths_
     assert a.best_below_truth == "2/3" and b.best_below_truth == "0/3"
     assert a.holdout_better_than_truth == "2/3" and a.rotation_error_deg == 1.0
     assert np.isclose(a.holdout_minus_truth_m, -0.1) and np.isclose(b.holdout_minus_truth_m, 2.0)
+
+
+def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_script):
+    module = load_script("identifiability")
+    runs = pd.concat([
+        _runs("nll", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]),
+        _runs("rmse", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]).assign(
+            objective="position_rmse", drives=1, noise_realisations=4),
+    ], ignore_index=True)
+    rows = module.markdown(module.summarise(runs)).splitlines()
+    assert len(rows) == 4 and rows[0].startswith("| objective |")
+    assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 0.50 |")  # the paper's objective first
+    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 |") and rows[3].endswith("| 2/2 |")
