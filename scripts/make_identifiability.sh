@@ -8,7 +8,7 @@
 # four noise realisations, 7 free (same world and trajectory, independent noise: does averaging the
 # noise alone do what four drives do?), seeds 0-4 (the
 # optimiser's seed is also the data seed: five cameras, five noise realisations); and the 4-drive,
-# 7-free configurations again with larger budgets (suffix _<N>evals: does CMA-ES's error at the
+# 7-free (and the likelihood's 10-free) configurations again with larger budgets (suffix _<N>evals: does CMA-ES's error at the
 # default budget belong to the objective or to the optimiser?). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
@@ -28,7 +28,7 @@ done
 all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free position_rmse_fourdrive_5free
       innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free
       innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
-      position_rmse_fourdrive_7free_1600evals)
+      position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
