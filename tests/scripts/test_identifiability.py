@@ -5,16 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
-
-
-def _runs(config: str, best_f, f_truth, holdout, holdout_truth, evals=400) -> pd.DataFrame:
+def _runs(module, config: str, best_f, f_truth, holdout, holdout_truth, evals=400) -> pd.DataFrame:
     n = len(best_f)
     rows = {"config": config, "objective": "innovation_nll", "drives": 4, "noise_realisations": 1, "free": 7,
             "seed": range(n), "evals": evals, "best_f": best_f, "f_truth": f_truth, "holdout_rmse_m": holdout,
             "holdout_rmse_truth_m": holdout_truth, "holdout_rmse_reference_m": 2.5, "ray_error_deg": 0.3,
             "reference_ray_error_deg": 0.37}
-    for k in ERRORS:
+    for k in module.ERRORS:
         rows[k] = np.arange(n, dtype=float)
         rows[f"reference_{k}"] = 1.0
     return pd.DataFrame(rows)
@@ -23,10 +20,10 @@ def _runs(config: str, best_f, f_truth, holdout, holdout_truth, evals=400) -> pd
 def test_each_folder_is_a_row_and_says_whether_the_optimiser_reached_the_truths_level(load_script):
     module = load_script("identifiability")
     runs = pd.concat([
-        _runs("a", best_f=[1.0, 2.0, 3.0], f_truth=[1.5, 1.5, 3.5], holdout=[1.0, 1.4, 1.1],
+        _runs(module, "a", best_f=[1.0, 2.0, 3.0], f_truth=[1.5, 1.5, 3.5], holdout=[1.0, 1.4, 1.1],
               holdout_truth=[1.2, 1.2, 1.2]),
         # the same settings but for the budget: another folder, another row
-        _runs("b", best_f=[2.0, 2.0, 2.0], f_truth=[1.0, 1.0, 1.0], holdout=[3.0, 3.0, 3.0],
+        _runs(module, "b", best_f=[2.0, 2.0, 2.0], f_truth=[1.0, 1.0, 1.0], holdout=[3.0, 3.0, 3.0],
               holdout_truth=[1.0, 1.0, 1.0], evals=1600),
     ], ignore_index=True)
     summary = module.summarise(runs)
@@ -40,8 +37,8 @@ def test_each_folder_is_a_row_and_says_whether_the_optimiser_reached_the_truths_
 def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_script):
     module = load_script("identifiability")
     runs = pd.concat([
-        _runs("nll", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]),
-        _runs("rmse", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]).assign(
+        _runs(module, "nll", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]),
+        _runs(module, "rmse", best_f=[1.0, 1.0], f_truth=[2.0, 2.0], holdout=[1.0, 1.0], holdout_truth=[1.0, 1.0]).assign(
             objective="position_rmse", drives=1, noise_realisations=4),
     ], ignore_index=True)
     rows = module.markdown(module.summarise(runs)).splitlines()
