@@ -28,7 +28,8 @@ done
 all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free position_rmse_fourdrive_5free
       innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free
       innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
-      position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals)
+      position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
+      innovation_nll_sixteendrive_7free_1600evals)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
