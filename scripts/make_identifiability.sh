@@ -7,10 +7,11 @@
 # and 5 free (the principal point frozen too: it trades against the rotation), and with one drive in
 # four noise realisations, 7 free (same world and trajectory, independent noise: does averaging the
 # noise alone do what four drives do?), seeds 0-4 (the
-# optimiser's seed is also the data seed: five cameras, five noise realisations); and the 4-drive,
-# 7-free (and the likelihood's 10-free) configurations again with larger budgets (suffix
-# _<N>evals: does CMA-ES's error at the default budget belong to the objective or to the
-# optimiser?). Then the summary table and figure (scripts/identifiability.py).
+# optimiser's seed is also the data seed: five cameras, five noise realisations); and some
+# configurations again with larger budgets (suffix _<N>evals: the 4-drive, 7-free ones, the
+# likelihood's 4-drive, 10-free and 16-drive ones; does CMA-ES's error at the default budget
+# belong to the objective or to the optimiser?). Then the summary table and figure
+# (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
 # others kept; without, the whole study is re-made.
