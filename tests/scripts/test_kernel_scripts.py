@@ -41,3 +41,13 @@ def test_the_base_package_imports_only_itself(tmp_path, monkeypatch, load_script
     for name, text in sources.items():
         assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), name
     assert "from avio_base._linalg import" in sources["_kernels.py"]
+
+
+def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, capsys):
+    """scripts/bench_layout.py's variants compute what the kernel computes (else its ratios
+    compare different work)."""
+    layout = load_script("bench_layout")
+    layout.main(["--lanes", "4", "--runtime-lanes", "8", "--repeats", "1", "--calls", "16"])
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "us/filter" in ln]
+    assert [ln.split()[0] for ln in lines] == ["committed", "rows", "lanes", "lanes"]
+    assert all("bit-identical=True" in ln for ln in lines), lines
