@@ -116,10 +116,10 @@ OBJECTIVE_ORDER = ("position_rmse", "innovation_nll")
 
 def ordered(summary: pd.DataFrame) -> pd.DataFrame:
     """Rows by objective (the paper's first), drives, noise realisations, free variables (most
-    first) and budget: the order of the table and the figure."""
+    first), budget and seeds: the order of the table and the figure."""
     rank = [OBJECTIVE_ORDER.index(o) if o in OBJECTIVE_ORDER else len(OBJECTIVE_ORDER) for o in summary.objective]
     keys = summary.assign(_o=rank, _f=-summary.free)
-    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals"], kind="stable")
+    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds"], kind="stable")
     return summary.loc[keys.index].reset_index(drop=True)
 
 

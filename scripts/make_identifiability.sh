@@ -10,7 +10,9 @@
 # optimiser's seed is also the data seed: five cameras, five noise realisations); and some
 # configurations again with larger budgets (suffix _<N>evals: the 4-drive, 7-free ones, the
 # likelihood's 4-drive, 10-free and 16-drive ones; does CMA-ES's error at the default budget
-# belong to the objective or to the optimiser?). Then the summary table and figure
+# belong to the objective or to the optimiser?), and the likelihood's 4-drive, 7-free one at
+# 1,600 evaluations with seeds 0-9 (suffix _<K>seeds: is its 5-seed median within the seeds'
+# scatter of the targets?). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -30,14 +32,14 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free
       innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
       position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
-      innovation_nll_sixteendrive_7free_1600evals)
+      innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
   [[ " ${all[*]} " == *" $name "* ]] || { echo "make_identifiability: unknown configuration $name; valid: ${all[*]}" >&2; exit 2; }
-  budget=$evals
-  if [[ $name =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; fi
-  base=${name%_*evals}
+  seeds=5 budget=$evals base=$name
+  if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
+  if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
   objective=${base%_*drive_*free}
   rest=${base#"${objective}_"}
   case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
@@ -48,7 +50,7 @@ for name in "$@"; do
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
   rm -rf "${out:?}/$name"
   start=$(date -u +%s)
-  python -m bench problem=synthetic optimizer=cmaes seed='range(5)' budget.evals="$budget" report=false \
+  python -m bench problem=synthetic optimizer=cmaes seed="range($seeds)" budget.evals="$budget" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
     'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
     hydra.sweep.dir="$out/$name"

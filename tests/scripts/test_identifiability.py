@@ -45,3 +45,13 @@ def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_sc
     assert len(rows) == 4 and rows[0].startswith("| objective |")
     assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 0.50 |")  # the paper's objective first
     assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 |") and rows[3].endswith("| 2/2 |")
+
+
+def test_a_configuration_with_more_seeds_follows_the_same_one_with_fewer(load_script):
+    module = load_script("identifiability")
+    more = _runs(module, "ten", best_f=[1.0] * 4, f_truth=[2.0] * 4, holdout=[1.0] * 4, holdout_truth=[1.0] * 4,
+                 evals=1600)
+    fewer = _runs(module, "five", best_f=[1.0] * 2, f_truth=[2.0] * 2, holdout=[1.0] * 2, holdout_truth=[1.0] * 2,
+                  evals=1600)
+    summary = module.summarise(pd.concat([more, fewer], ignore_index=True))
+    assert list(summary.seeds) == [2, 4] and summary.iloc[1].best_below_truth == "4/4"
