@@ -21,3 +21,13 @@ def test_no_test_without_two_groups(load_script):
     split = load_script("check_objective").losers_by_ray_error
     assert split(np.ones(5, bool), np.arange(5.0))["p"] is None
     assert split(np.zeros(5, bool), np.arange(5.0))["p"] is None
+
+
+def test_the_ranking_counts_the_seeds_the_truth_wins_under_each_objective(load_script, capsys):
+    module = load_script("check_objective")
+    rmse = [np.array([1.0, 2.0]), np.array([1.0, 0.5]), np.array([1.0, 3.0])]  # (truth, reference) per seed
+    nll = [np.array([1.0, 2.0])] * 3
+    module._print_ranking([rmse, nll], np.array([0.3, 0.2, 0.5]))
+    out = capsys.readouterr().out.splitlines()
+    assert "position_rmse: truth better in 2/3 seeds" in out[0] and "lost in seeds 1," in out[1]
+    assert "innovation_nll: truth better in 3/3 seeds" in out[2] and len(out) == 3
