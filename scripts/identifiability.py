@@ -125,12 +125,12 @@ def ordered(summary: pd.DataFrame) -> pd.DataFrame:
 
 def markdown(summary: pd.DataFrame) -> str:
     """The summary (:func:`summarise`, in its order) as the README's Markdown table."""
-    lines = ["| objective | drives | free | evaluations | rotation (deg) | focal (px) | principal point (px) | "
+    lines = ["| objective | drives | free | evaluations | seeds | rotation (deg) | focal (px) | principal point (px) | "
              "lever arm (cm) | ray error (deg) | held-out RMSE (m) | held-out − truth, paired (m) | held-out better "
-             "than reference / than truth | best f below f(truth) |", "|" + "---|" * 13]
+             "than reference / than truth | best f below f(truth) |", "|" + "---|" * 14]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
-        lines.append(f"| {r.objective} | {drives} | {r.free} | {r.evals} | {r.rotation_error_deg:.2f} | "
+        lines.append(f"| {r.objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
                      f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} |")
@@ -143,9 +143,11 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
 
     colours = {"position_rmse": "tab:blue", "innovation_nll": "tab:orange"}
     # one short line per bar: drives (x noise realisations), free variables; colour: objective
-    budgets = summary.evals.nunique() > 1  # the budget in the label only where the study varies it
+    budgets = summary.evals.nunique() > 1  # the budget (and seed count) in the label only where the study varies it
+    usual = summary.seeds.mode().iloc[0]
     labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
-              + (f", {r.evals} ev" if budgets else "") for r in summary.itertuples()]
+              + (f", {r.evals} ev" if budgets else "") + (f", {r.seeds} seeds" if r.seeds != usual else "")
+              for r in summary.itertuples()]
     fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",
               "ray error (deg)")

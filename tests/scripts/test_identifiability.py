@@ -43,8 +43,8 @@ def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_sc
     ], ignore_index=True)
     rows = module.markdown(module.summarise(runs)).splitlines()
     assert len(rows) == 4 and rows[0].startswith("| objective |")
-    assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 0.50 |")  # the paper's objective first
-    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 |") and rows[3].endswith("| 2/2 |")
+    assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 2 | 0.50 |")  # the paper's objective first
+    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 | 2 |") and rows[3].endswith("| 2/2 |")
 
 
 def test_a_configuration_with_more_seeds_follows_the_same_one_with_fewer(load_script):
