@@ -12,7 +12,8 @@ accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the tru
     kitti00 windows (real IMU, simulated camera; frames 15–796 and 2404–3553), one line per seed.
 outliers: the same for each outlier_rejection mode (how the default was chosen).
 speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) for each batch
-    size and kernel thread count (avio.filter.set_threads; median of --repeats runs, wall and
+    size and kernel thread count (the same 64 calibrations, an optimiser-like population around
+    the truth, in batches of each size up to 64; avio.filter.set_threads; median of --repeats runs, wall and
     process CPU; the calibration-independent preparation and the first call's numba cache load
     excluded and reported separately), the per-evaluation gain of batch 64 on all threads over
     batch 1 on one, the peak memory, a scaling line (ms per evaluation against frames and
@@ -114,15 +115,23 @@ def _kitti(args, first=15, last=796):
     return load_kitti00(Path(args.data) / "kitti00", first, last, seed=0)
 
 
-def _time_batch(seq, cals, config, prep, repeats):
-    """Median wall and process-CPU seconds of ``repeats`` runs of one batch."""
+def _time_batch(seq, batches, config, prep, repeats):
+    """Median wall and process-CPU seconds of ``repeats`` runs of the batches (Calibration each),
+    one after the other."""
     wall, cpu = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
-        run(seq, cals, config, prep)
+        for cals in batches:
+            run(seq, cals, config, prep)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     return float(np.median(wall)), float(np.median(cpu))
+
+
+#: Every batch size up to this one evaluates the same calibrations (in batches of its size), so
+#: that the per-evaluation times compare batching, not the cost of different calibrations (a
+#: filter whose calibration loses features or diverges costs less).
+SAME_WORK = 64
 
 
 def _subprocess_s(cmd, env=None, cwd=REPO):
@@ -190,28 +199,40 @@ def speed(args, config: FilterConfig) -> None:
         set_threads(n_threads)
         run(seq, _candidates(seq.truth_calibration, 2, seed=0), config, prep)  # starts the threads
     per_eval = {}
-    for n in args.batches:
-        cals = _candidates(seq.truth_calibration, n, seed=n)
-        walls, cpus = {t: [] for t in args.threads}, {t: [] for t in args.threads}
-        for _ in range(args.repeats):
+    pool = _candidates(seq.truth_calibration, max(max(args.batches), SAME_WORK), seed=0)
+    print(f"every batch size up to {SAME_WORK} evaluates the same {SAME_WORK} calibrations (larger ones the "
+          f"first n of the same draw)", flush=True)
+    work = {n: max(n, SAME_WORK) for n in args.batches}
+    batches = {n: [pool[i:min(i + n, work[n])] for i in range(0, work[n], n)] for n in args.batches}
+    walls = {(t, n): [] for n in args.batches for t in args.threads}
+    cpus = {key: [] for key in walls}
+    # Batch sizes and thread counts interleaved within each repeat: this VM's speed drifts by tens
+    # of percent within a minute, so only measurements taken side by side compare.
+    for _ in range(args.repeats):
+        for n in args.batches:
             for n_threads in args.threads:
                 set_threads(n_threads)
-                wall, cpu = _time_batch(seq, cals, config, prep, 1)
-                walls[n_threads].append(wall)
-                cpus[n_threads].append(cpu)
+                wall, cpu = _time_batch(seq, batches[n], config, prep, 1)
+                walls[n_threads, n].append(wall / work[n])
+                cpus[n_threads, n].append(cpu / work[n])
+    for n in args.batches:
         for n_threads in args.threads:
-            wall, cpu = float(np.median(walls[n_threads])), float(np.median(cpus[n_threads]))
-            per_eval[n_threads, n] = wall / n
-            print(f"threads {n_threads} batch {n:4d}: {n / wall:7.1f} evaluations/s ({1e3 * wall / n:6.2f} ms per "
-                  f"evaluation, CPU {1e3 * cpu / n:6.2f} ms; median of {args.repeats}, batch {wall:6.3f} s)",
-                  flush=True)
-        print(f"  load average {os.getloadavg()[0]:.2f}", flush=True)
+            wall, cpu = float(np.median(walls[n_threads, n])), float(np.median(cpus[n_threads, n]))
+            per_eval[n_threads, n] = np.array(walls[n_threads, n])
+            print(f"threads {n_threads} batch {n:4d}: {1 / wall:7.1f} evaluations/s ({1e3 * wall:6.2f} ms "
+                  f"per evaluation, CPU {1e3 * cpu:6.2f} ms; median of {args.repeats}, {len(batches[n])} "
+                  f"batch(es) of {work[n]} evaluations)", flush=True)
+    print(f"  load average {os.getloadavg()[0]:.2f}", flush=True)
     set_threads(None)
     t_lo, t_hi = min(args.threads), max(args.threads)
     if (t_lo, 1) in per_eval and (t_hi, 64) in per_eval:
-        print(f"batch 64 x {t_hi} threads vs batch 1 x {t_lo} thread, per evaluation: "
-              f"{per_eval[t_lo, 1] / per_eval[t_hi, 64]:.2f}x; batch 64 vs batch 1 at {t_lo} thread: "
-              f"{per_eval[t_lo, 1] / per_eval[t_lo, 64]:.2f}x", flush=True)
+        def paired(a, b):  # median and range of the per-repeat ratios
+            r = per_eval[a] / per_eval[b]
+            return f"{np.median(r):.2f}x ({r.min():.2f}-{r.max():.2f})"
+
+        print(f"batch 64 x {t_hi} threads vs batch 1 x {t_lo} thread, per evaluation, paired by repeat: "
+              f"{paired((t_lo, 1), (t_hi, 64))}; batch 64 vs batch 1 at {t_lo} thread: "
+              f"{paired((t_lo, 1), (t_lo, 64))}", flush=True)
     n = args.memory_batch
     tracemalloc.start()
     run(seq, _candidates(seq.truth_calibration, n, seed=1), config, prep)
