@@ -10,9 +10,9 @@
 # optimiser's seed is also the data seed: five cameras, five noise realisations); and some
 # configurations again with larger budgets (suffix _<N>evals: the 4-drive, 7-free ones, the
 # likelihood's 4-drive, 10-free and 16-drive ones; does CMA-ES's error at the default budget
-# belong to the objective or to the optimiser?), and the likelihood's 4-drive, 7-free one at
-# 1,600 evaluations with seeds 0-9 (suffix _<K>seeds: is its 5-seed median within the seeds'
-# scatter of the targets?). Then the summary table and figure
+# belong to the objective or to the optimiser?), and both objectives' 4-drive, 7-free ones at
+# 1,600 evaluations with seeds 0-9 (suffix _<K>seeds: is the 5-seed median within the seeds'
+# scatter of the targets, and does the likelihood's lead hold?). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -32,7 +32,8 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free
       innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
       position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
-      innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds)
+      innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds
+      position_rmse_fourdrive_7free_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
