@@ -69,9 +69,23 @@ def rows(Pi, Phi, Qd, T, U):
             Pi[b, a] = T[a, b]
 
 
+@numba.njit(error_model="numpy", inline="always")
+def _add_rows(dst, a, Phi, src, ncols, L):
+    """dst[a, :ncols] += sum_c Phi[a, c] src[c, :ncols] in every lane (dst, src (rows, cols, L));
+    a c is skipped when Phi[a, c] is zero in every lane (adding 0 * finite changes no bit).
+    Inlined, so a compiled-in L stays a constant."""
+    for c in range(Phi.shape[1]):
+        nz = False
+        for k in range(L):
+            nz |= Phi[a, c, k] != 0.0
+        if nz:
+            for b in range(ncols):
+                for k in range(L):
+                    dst[a, b, k] += Phi[a, c, k] * src[c, b, k]
+
+
 def lanes_kernel(L: int, runtime: bool = False):
-    """propagate_covariance of L filters in lock-step: P (27, 27, L), Phi (15, 15, L); a zero of
-    Phi is skipped when it is zero in every lane (adding 0 * finite changes no bit). runtime:
+    """propagate_covariance of L filters in lock-step: P (27, 27, L), Phi (15, 15, L). runtime:
     the lane count read from P's shape instead of compiled in."""
 
     @numba.njit(error_model="numpy")
@@ -81,14 +95,7 @@ def lanes_kernel(L: int, runtime: bool = False):
             for b in range(27):
                 for k in range(L):
                     T[a, b, k] = 0.0
-            for c in range(15):
-                nz = False
-                for k in range(L):
-                    nz |= Phi[a, c, k] != 0.0
-                if nz:
-                    for b in range(27):
-                        for k in range(L):
-                            T[a, b, k] += Phi[a, c, k] * P[c, b, k]
+            _add_rows(T, a, Phi, P, 27, L)
         for a in range(15):
             for b in range(15):
                 for k in range(L):
@@ -97,14 +104,7 @@ def lanes_kernel(L: int, runtime: bool = False):
             for b in range(15):
                 for k in range(L):
                     P[a, b, k] = Qd[a, b]
-            for c in range(15):
-                nz = False
-                for k in range(L):
-                    nz |= Phi[a, c, k] != 0.0
-                if nz:
-                    for b in range(15):
-                        for k in range(L):
-                            P[a, b, k] += Phi[a, c, k] * U[c, b, k]
+            _add_rows(P, a, Phi, U, 15, L)
             for b in range(15, 27):
                 for k in range(L):
                     P[a, b, k] = T[a, b, k]
