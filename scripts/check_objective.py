@@ -111,21 +111,20 @@ def consistency_and_ranking(seeds: int, drives=(1,)) -> None:
     for n in drives:
         if n > 1:
             print(f"3b. the same with each objective over {n} drives of each seed's camera (problem.params.drives):")
-            _print_ranking(*_ranking(seeds, n))
+            _print_ranking(_ranking(seeds, n), np.array(rays))  # the same cameras: the same ray errors
 
 
-def _ranking(seeds: int, n_drives: int) -> tuple[list, np.ndarray]:
-    """Both objectives at (truth, reference) of each seed's camera over n_drives drives, and the
-    reference's ray error per seed."""
-    f, rays = [[], []], []
+def _ranking(seeds: int, n_drives: int) -> list:
+    """Both objectives at (truth, reference) of each seed's camera over n_drives drives:
+    f[j][seed] (2,)."""
+    f = [[], []]
     for seed in range(seeds):
         problem = Synthetic(drives=("paper_540m",) * n_drives, holdout=None, data_seed=seed)
         cal, ref = problem.sequence.truth_calibration, problem.sequence.reference_calibration
-        rays.append(float(ray_error_deg(ref, cal, problem.sequence.image_size_px)[0]))
         _, metrics = problem.score(type(cal).stack([cal, ref]))
         for j, name in enumerate(("position_rmse_m", "innovation_nll")):
             f[j].append(metrics[name])
-    return f, np.array(rays)
+    return f
 
 
 def _print_ranking(f: list, rays: np.ndarray) -> None:
