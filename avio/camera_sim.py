@@ -233,11 +233,15 @@ def simulate_tracks(
     min_depth_m: float = 1.0,
     max_depth_m: float = 80.0,
     return_details: bool = False,
+    noise_per_triplet: bool = False,
 ):
     """Triplet tracks a camera with ``calibration`` (batch of 1) would see of the landmarks.
 
     Projections (see project_landmarks) get Gaussian noise of ``pixel_noise_px`` (per
-    observation, so a feature is consistent across the triplets sharing it); a track is a
+    observation, so a feature is consistent across the triplets sharing it; with
+    ``noise_per_triplet`` instead drawn afresh for every triplet's three images, so that the
+    updates' measurements are independent, as the filter assumes: a diagnostic, not a camera —
+    the triplets are then chosen on the noiseless pixels); a track is a
     landmark; triplets are chosen by bucketing (``max_features`` per triplet, avio.tracks) and
     then ``outlier_fraction`` of the chosen features become wrong matches (corrupt_triplets).
     Returns TripletTracks; with ``return_details`` also a dict with the noiseless ``uv_true_px``
@@ -248,11 +252,14 @@ def simulate_tracks(
         raise CameraSimError(f"avio.camera_sim: pixel_noise_px must be >= 0, got {pixel_noise_px}")
     frame_t_s = np.asarray(frame_t_s, float)
     obs = project_landmarks(truth, frame_t_s, calibration, landmarks_world, image_size_px, min_depth_m, max_depth_m)
-    noisy = obs.uv_px + pixel_noise_px * rng.standard_normal(obs.uv_px.shape)
+    noisy = obs.uv_px if noise_per_triplet else obs.uv_px + pixel_noise_px * rng.standard_normal(obs.uv_px.shape)
     tracks, ids = triplets_from_observations(
         obs.frame_index, obs.landmark_id, noisy, len(frame_t_s), max_features, rng,
         image_size_px=image_size_px, return_track_ids=True,
     )
+    if noise_per_triplet:
+        fresh = pixel_noise_px * rng.standard_normal(tracks.uv_px.shape) * tracks.valid[:, :, None, None]
+        tracks = replace(tracks, uv_px=tracks.uv_px + fresh)
     tracks, outlier = corrupt_triplets(tracks, outlier_fraction, rng)
     if not return_details:
         return tracks

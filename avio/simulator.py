@@ -57,6 +57,9 @@ class SimConfig:
         from N(0, accel_bias_sigma_mps2 / gyro_bias_sigma_radps) when imu_noise_on, else zero.
     pixel_noise_px: Gaussian pixel noise; outlier_fraction: share of wrong matches per triplet;
         max_features: features per triplet (bucketing), None for all.
+    pixel_noise_per_triplet: the pixel noise drawn afresh for every triplet instead of once per
+        observation (avio.camera_sim.simulate_tracks: overlapping triplets then share no noise;
+        a diagnostic of the filter's independence assumption, scripts/likelihood_tilt.py).
     time_offset_s: the truth camera's clock offset (frame stamped t exposed at IMU time t + offset).
     calibration_error: "realistic" (drawn from the seed: N(0, sizes[0]) px on fx, fy,
         N(0, sizes[1]) px on cx, cy, a rotation of sizes[2] degrees about a random axis and a
@@ -85,6 +88,7 @@ class SimConfig:
     pixel_noise_px: float = 0.7
     outlier_fraction: float = 0.05
     max_features: int | None = 30
+    pixel_noise_per_triplet: bool = False
     time_offset_s: float = 0.0
     calibration_error: str = "realistic"
     calibration_error_sizes: tuple[float, float, float, float] = (1.5, 1.5, 0.4, 0.03)
@@ -244,9 +248,12 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
         tracks = simulate_tracks(
             trajectory, frame_t, true_cal, landmarks, config.image_size_px, config.pixel_noise_px,
             config.outlier_fraction, config.max_features, rngs["tracks"],
+            noise_per_triplet=config.pixel_noise_per_triplet,
         )
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
     config_dict = asdict(config)
+    if not config.pixel_noise_per_triplet:  # absent at its default, so the hashes of existing drives stay
+        del config_dict["pixel_noise_per_triplet"]
     seed_value = _plain_seed(seed)
     noise_value = None if noise_seed is None else _plain_seed(noise_seed)
     extra = {"config": config_dict, "seed": seed_value}

@@ -85,6 +85,37 @@ def test_pixel_noise_and_outliers_have_the_requested_sizes(world):
     assert jump.max() < 60 + 5 * 0.8
 
 
+def _noise_of_shared_images(tracks, det):
+    """The pixel noise of the two images consecutive triplets share, for every feature seen in
+    both: (n, 2, 2) from the earlier triplet and the same (n, 2, 2) from the later one."""
+    err = tracks.uv_px - det["uv_true_px"]
+    earlier, later = [], []
+    for t in np.nonzero(np.diff(tracks.frame_index) == 1)[0]:
+        ids_next = det["landmark_id"][t + 1]
+        for f in np.nonzero(tracks.valid[t])[0]:
+            g = np.nonzero(tracks.valid[t + 1] & (ids_next == det["landmark_id"][t, f]))[0]
+            if len(g):
+                earlier.append(err[t, f, 1:])
+                later.append(err[t + 1, g[0], :2])
+    return np.array(earlier), np.array(later)
+
+
+def test_pixel_noise_is_per_observation_unless_drawn_per_triplet(world):
+    _, truth, landmarks = world
+    shared, fresh = (
+        simulate_tracks(truth, FRAME_T, kitti_2011_10_03_calibration(), landmarks, IMAGE_SIZE_PX, 0.8, 0.0, 30,
+                        np.random.default_rng(2), return_details=True, noise_per_triplet=per_triplet)
+        for per_triplet in (False, True)
+    )
+    a, b = _noise_of_shared_images(*shared)
+    assert len(a) > 500
+    np.testing.assert_array_equal(a, b)  # one observation, one noise, in every triplet that uses it
+    a, b = _noise_of_shared_images(*fresh)
+    assert len(a) > 500
+    assert np.std(a) == pytest.approx(0.8, rel=0.05) and np.std(b) == pytest.approx(0.8, rel=0.05)
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.05  # drawn afresh for every triplet
+
+
 def test_corrupt_triplets_rejects_bad_fraction(world):
     _, truth, landmarks = world
     tracks = simulate_tracks(truth, FRAME_T, kitti_2011_10_03_calibration(), landmarks, IMAGE_SIZE_PX,

@@ -130,6 +130,16 @@ def test_a_noise_seed_keeps_the_world_and_redraws_only_the_measurements():
     np.testing.assert_array_equal(again.tracks.uv_px, b.tracks.uv_px)
 
 
+def test_pixel_noise_per_triplet_is_another_drive_and_absent_from_the_default_hash():
+    cfg = SimConfig.paper_540m(duration_s=20.0)
+    a, b = simulate(cfg, 5), simulate(replace(cfg, pixel_noise_per_triplet=True), 5)
+    np.testing.assert_array_equal(a.imu.gyro_imu_radps, b.imu.gyro_imu_radps)
+    assert not np.array_equal(a.tracks.uv_px, b.tracks.uv_px)
+    assert a.meta["content_hash"] != b.meta["content_hash"]
+    # the default leaves the field out of the hashed config: existing drives keep their hashes
+    assert "pixel_noise_per_triplet" not in a.meta["config"] and b.meta["config"]["pixel_noise_per_triplet"]
+
+
 def test_camera_settings_do_not_change_the_trajectory_or_the_imu():
     cfg = SimConfig.paper_540m(duration_s=20.0)
     a, b = simulate(cfg, 5), simulate(replace(cfg, pixel_noise_px=2.0, max_features=10), 5)
