@@ -66,11 +66,21 @@ def best_calibrations(rows: pd.DataFrame, reference: Calibration, image_size_px)
     return Calibration.stack(cals)
 
 
+#: the run parameters that decide its held-out drive and how it is scored (runs sharing them share one batch)
+HELD_OUT_KEYS = ("data_seed", "holdout", "sim", "filter", "divergence_penalty_m")
+
+
 def held_out(runs: pd.DataFrame) -> pd.DataFrame:
-    """Held-out RMSE (m) of each run's best calibration and of the reference, per data seed."""
+    """Held-out RMSE (m) of each run's best calibration and of the reference, one batch per data
+    seed and held-out setting (the run's own held-out preset, simulator and filter settings)."""
     out = []
-    for data_seed, group in runs.groupby("data_seed"):
-        problem = Synthetic(drives=["paper_540m"], holdout="paper_928m", data_seed=int(data_seed), space="local")
+    keys = runs["params"].map(lambda p: json.dumps([p.get(k) for k in HELD_OUT_KEYS], sort_keys=True))
+    for key, group in runs.groupby(keys, sort=False):
+        params = {k: _plain(v) for k, v in zip(HELD_OUT_KEYS, json.loads(key)) if v is not None}
+        if "holdout" not in params:
+            raise SystemExit(f"identifiability: the runs of {sorted(set(group['config']))} have no held-out drive")
+        first_drive = group.iloc[0]["params"]["drives"][0]  # the camera is drawn with the first drive
+        problem = Synthetic(drives=[first_drive], space="local", **params)
         found = best_calibrations(group, problem.sequence.reference_calibration, problem.sequence.image_size_px)
         batch = Calibration.stack([found, problem.sequence.truth_calibration, problem.sequence.reference_calibration])
         result = problem.run_filter(batch, problem.holdout)
