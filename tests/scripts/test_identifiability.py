@@ -55,3 +55,22 @@ def test_a_configuration_with_more_seeds_follows_the_same_one_with_fewer(load_sc
                   evals=1600)
     summary = module.summarise(pd.concat([more, fewer], ignore_index=True))
     assert list(summary.seeds) == [2, 4] and summary.iloc[1].best_below_truth == "4/4"
+
+
+def test_each_run_is_held_out_with_its_own_filter_and_simulator_settings(load_script):
+    module = load_script("identifiability")
+    base = {"space": "local", "drives": ["paper_540m"], "holdout": "paper_928m", "data_seed": 1,
+            "sim": {"duration_s": 12.0}, "filter": None, "divergence_penalty_m": 1000.0,
+            "tie_focal": False, "bounds": None, "with_time_offset": False}
+    other = {**base, "filter": {"max_update_features": 6}}
+    problem = module.Synthetic(**{**base, "holdout": None})
+    x = problem.truth + 0.5
+    runs = pd.DataFrame({"config": ["a", "b"], "data_seed": [1, 1], "params": [base, other], "best_x": [x, x]})
+    got = module.held_out(runs)
+    for i, params in enumerate((base, other)):  # as a problem built with the run's own settings scores it
+        own = module.Synthetic(**{k: v for k, v in params.items() if v is not None})
+        batch = module.Calibration.stack([own.calibration_space.decode(x[None]), own.sequence.reference_calibration])
+        rmse = module.position_rmse_objective(own.run_filter(batch, own.holdout), own.holdout.truth, 1000.0)
+        assert np.isclose(got.loc[i, "holdout_rmse_m"], rmse[0], rtol=0, atol=1e-12)
+        assert np.isclose(got.loc[i, "holdout_rmse_reference_m"], rmse[1], rtol=0, atol=1e-12)
+    assert got.loc[0, "holdout_rmse_m"] != got.loc[1, "holdout_rmse_m"]  # the filter settings matter
