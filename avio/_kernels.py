@@ -267,7 +267,8 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 @numba.njit(cache=True, error_model="numpy")
 def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma_px,
-           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows):
+           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows,
+           record, decided):
     """One trifocal update of one filter (state and covariance Pi (27, 27) in place).
 
     Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
@@ -287,7 +288,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
     rejected, the update's NIS, log det S and residual count, its NLL contribution with the
     capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
-    feature). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
+    feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
     :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
     avio/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
@@ -393,6 +394,9 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     used = 0
     rr = 0.0
     log_det_R = 0.0
+    if record:
+        for f in range(F):
+            decided[f] = inl[f]
     for f in range(F):
         if not inl[f]:
             continue
@@ -591,7 +595,7 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                 valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
                 mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
                 out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                out_nll, out_slots):
+                out_nll, out_slots, out_used):
     """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order: prediction
     (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
@@ -600,7 +604,9 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
     keeps the estimates of its last good frame, reports the initial sigmas and no updates
     from then on. Writes the out_* arrays (n, N, ...), n_upd, n_out (n, N), div_at (n,) and the
     innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
-    contribution and residual slots (:func:`update`; zero where no trifocal update ran).
+    contribution and residual slots (:func:`update`; zero where no trifocal update ran);
+    out_used (n, n_triplets, F) uint8, or (0, ...) not to record them: which features each
+    triplet's update used (zero where none ran).
     The biases start at ba0, bg0 (3,), the prior means.
     This call runs filters lo..hi-1 (of the n of the out_* arrays), one after the other, with one
     set of workspaces allocated here (nothing is allocated in the frame loop); it releases the
@@ -620,6 +626,8 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
     R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
     ba_s, bg_s = np.empty(3), np.empty(3)
     sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))
+    record = out_used.shape[0] > 0
+    no_record = np.zeros(F, np.uint8)
     for i in range(lo, hi):
         copy2(R, R0)
         copy1(p, p0)
@@ -639,6 +647,8 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
         out_dof[i, :] = 0
         out_nll[i, :] = 0.0
         out_slots[i, :] = 0
+        if record:
+            out_used[i] = 0
         div_at[i] = 0 if frozen[i] else -1
         k_stop = 0 if frozen[i] else N
         for k in range(k_stop):
@@ -659,10 +669,11 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                 zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
                                           zero_velocity_sigma_mps, E, T3, zS, zZ, zdx, zK)
             elif k >= 2 and j >= 0:
+                decided = out_used[i, j] if record else no_record
                 used, rej, nis, ldS, dof, nll, slots = update(
                     R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega, td[i], fx[i], fy[i], cx[i],
                     cy[i], Rci[i], pic[i], uv[j], valid[j], sigma_px, max_transfer_gain, min_parallax_m, mode,
-                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows)
+                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows, record, decided)
                 n_upd[i, k], n_out[i, k] = used, rej
                 out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
             slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)
@@ -675,6 +686,8 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                 out_dof[i, k] = 0
                 out_nll[i, k] = 0.0
                 out_slots[i, k] = 0
+                if record and j >= 0:
+                    out_used[i, j] = 0
                 copy1(ba, ba_s)
                 copy1(bg, bg_s)
                 k_stop = k

@@ -47,6 +47,7 @@ def load(folder: Path) -> pd.DataFrame:
         rows.append({"config": path.relative_to(folder).parts[0], "objective": params["objective"],
                      "drives": len(params["drives"]), "noise_realisations": params.get("noise_realisations", 1),
                      "free": len(record["best_x"]), "seed": record["seed"],
+                     "decisions": (params.get("filter") or {}).get("outlier_decisions", "own"),
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
                      "evals": record["n_evals"], "best_f": record["best_f"], "f_truth": record["f_truth"],
                      **{k: record["best_metrics"][k] for k in ERRORS}})
@@ -100,7 +101,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     for _, g in runs.groupby("config", sort=False):  # one configuration per folder (which variables are free, too)
         first = g.iloc[0]
         row = {"objective": first.objective, "drives": first.drives, "noise_realisations": first.noise_realisations,
-               "free": first.free, "evals": int(g.evals.median()), "seeds": len(g)}
+               "free": first.free, "evals": int(g.evals.median()), "seeds": len(g), "decisions": first.decisions}
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
             row[f"reference_{k}"] = g[f"reference_{k}"].median()
@@ -126,10 +127,10 @@ OBJECTIVE_ORDER = ("position_rmse", "innovation_nll")
 
 def ordered(summary: pd.DataFrame) -> pd.DataFrame:
     """Rows by objective (the paper's first), drives, noise realisations, free variables (most
-    first), budget and seeds: the order of the table and the figure."""
+    first), budget, seeds and outlier decisions (the filters' own first): the order of the table and the figure."""
     rank = [OBJECTIVE_ORDER.index(o) if o in OBJECTIVE_ORDER else len(OBJECTIVE_ORDER) for o in summary.objective]
-    keys = summary.assign(_o=rank, _f=-summary.free)
-    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds"], kind="stable")
+    keys = summary.assign(_o=rank, _f=-summary.free, _d=summary.decisions != "own")
+    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d"], kind="stable")
     return summary.loc[keys.index].reset_index(drop=True)
 
 
@@ -140,7 +141,8 @@ def markdown(summary: pd.DataFrame) -> str:
              "than reference / than truth | best f below f(truth) |", "|" + "---|" * 14]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
-        lines.append(f"| {r.objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
+        objective = r.objective + (f" ({r.decisions} decisions)" if r.decisions != "own" else "")
+        lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
                      f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} |")
@@ -157,6 +159,7 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     usual = summary.seeds.mode().iloc[0]
     labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
               + (f", {r.evals} ev" if budgets else "") + (f", {r.seeds} seeds" if r.seeds != usual else "")
+              + (f", {r.decisions} dec" if r.decisions != "own" else "")
               for r in summary.itertuples()]
     fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",

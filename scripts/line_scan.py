@@ -11,7 +11,7 @@ few decisions change says the minimum is a cell of the objective's piecewise-smo
 the bottom of a valley.
 
     python scripts/line_scan.py results/identifiability/innovation_nll_fourdrive_7free_1600evals_10seeds
-        [--seeds 3] [--t 0 0.5 0.9 ...] [--fine 0.9 1.1 21]
+        [--seeds 3] [--t 0 0.5 0.9 ...] [--fine 0.9 1.1 21] [--filter '{"outlier_decisions": "reference"}']
 """
 
 from __future__ import annotations
@@ -43,10 +43,13 @@ def records(folder: Path, seeds: list[int] | None) -> list[dict]:
     return sorted(found, key=lambda r: r["seed"])
 
 
-def scan(record: dict, ts) -> dict[str, np.ndarray]:
+def scan(record: dict, ts, filter_overrides: dict | None = None) -> dict[str, np.ndarray]:
     """(len(ts),) f, and the features used and rejected over all drives, along the line from
-    the problem's truth (t = 0) to the record's best point (t = 1), clipped to the bounds."""
+    the problem's truth (t = 0) to the record's best point (t = 1), clipped to the bounds
+    (filter_overrides: FilterConfig settings over the record's)."""
     params = {k: _plain(v) for k, v in record["config"]["problem"]["params"].items()}
+    if filter_overrides:
+        params["filter"] = {**(params.get("filter") or {}), **filter_overrides}
     problem = Synthetic(**{**params, "holdout": None})  # the held-out drive plays no part
     x0, best = problem.truth, np.asarray(record["best_x"], float)
     X = np.clip(x0 + np.asarray(ts, float)[:, None] * (best - x0), problem.space.lower, problem.space.upper)
@@ -66,12 +69,14 @@ def main(argv=None) -> None:
     parser.add_argument("--t", type=float, nargs="+", default=list(DEFAULT_T), help="points along the line")
     parser.add_argument("--fine", type=float, nargs=3, metavar=("FROM", "TO", "N"),
                         help="instead of --t: N evenly spaced points (e.g. around the best point: 0.9 1.1 21)")
+    parser.add_argument("--filter", type=json.loads, default=None,
+                        help='FilterConfig settings over the record\'s, e.g. \'{"outlier_decisions": "reference"}\'')
     args = parser.parse_args(argv)
     ts = np.linspace(args.fine[0], args.fine[1], int(args.fine[2])) if args.fine else np.asarray(args.t)
     ts = np.unique(np.r_[0.0, ts])  # t = 0 (the truth) is the baseline of f
     set_threads(2)
     for record in records(args.folder, args.seeds):
-        out = scan(record, ts)
+        out = scan(record, ts, args.filter)
         m = record["best_metrics"]
         print(f"seed {record['seed']}: best point {m['rotation_error_deg']:.2f} deg, "
               f"{m['principal_point_error_px']:.1f} px from the truth")

@@ -12,7 +12,10 @@
 # likelihood's 4-drive, 10-free and 16-drive ones; does CMA-ES's error at the default budget
 # belong to the objective or to the optimiser?), and both objectives' 4-drive, 7-free ones at
 # 1,600 evaluations with seeds 0-9 (suffix _<K>seeds: is the 5-seed median within the seeds'
-# scatter of the targets, and does the likelihood's lead hold?). Then the summary table and figure
+# scatter of the targets, and does the likelihood's lead hold?), and those two again with the
+# outlier decisions of a filter at the reference imposed on every calibration (suffix
+# _refdecisions, FilterConfig.outlier_decisions: do the runs end nearer the truth when the
+# objective no longer jumps with the decisions?). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -33,7 +36,8 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
       position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
       innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds
-      position_rmse_fourdrive_7free_1600evals_10seeds)
+      position_rmse_fourdrive_7free_1600evals_10seeds innovation_nll_fourdrive_7free_refdecisions_1600evals_10seeds
+      position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -41,6 +45,7 @@ for name in "$@"; do
   seeds=5 budget=$evals base=$name
   if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
+  decisions=(); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
   objective=${base%_*drive_*free}
   rest=${base#"${objective}_"}
   case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
@@ -53,7 +58,7 @@ for name in "$@"; do
   start=$(date -u +%s)
   python -m bench problem=synthetic optimizer=cmaes seed="range($seeds)" budget.evals="$budget" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
-    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done

@@ -65,7 +65,7 @@ def _replace(src: str, old: str, new: str) -> str:
 
 def patch_kernels(src: str) -> str:
     """avio/_kernels.py with every phase wrapped in a repeat loop (module docstring)."""
-    src = _replace(src, "chi2_threshold, ws, mws, nws, ows):", "chi2_threshold, ws, mws, nws, ows, rep):")
+    src = _replace(src, "           record, decided):", "           record, decided, rep):")
     src = _wrap(src, "    measure(R, p, v, cp0", "    # Without baseline", 0)
     src = _wrap(src, "    matmul(C, Pi, CP)\n", "    for f in range(F):\n        inl[f] = ok[f]", 1)
     src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py)", 2)
@@ -83,8 +83,8 @@ def patch_kernels(src: str) -> str:
     src = _replace(src, "                Pi[a, c] -= kab * CP[b, c]\n", "                Pi[a, c] += kab * CP[b, c]\n")
     src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            kab = (-1.0",
                 "    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)", 6)
-    src = _replace(src, "                out_nll, out_slots):", "                out_nll, out_slots, rep):")
-    src = _replace(src, "chi2_threshold, ws, mws, nws, ows)\n", "chi2_threshold, ws, mws, nws, ows, rep)\n")
+    src = _replace(src, "                out_nll, out_slots, out_used):", "                out_nll, out_slots, out_used, rep):")
+    src = _replace(src, "chi2_threshold, ws, mws, nws, ows, record, decided)\n", "chi2_threshold, ws, mws, nws, ows, record, decided, rep)\n")
     src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n",
                    "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
                    "    cps, cRs = np.empty((2, 3)), np.empty((2, 3, 3))\n")
@@ -103,7 +103,7 @@ def patch_kernels(src: str) -> str:
 
 def patch_filter(src: str) -> str:
     src = _replace(src, "def run(sequence", f"REP = np.ones({len(PHASES)}, np.int64)\n\n\ndef run(sequence")
-    return _replace(src, "            out_slots)\n", "            out_slots, REP)\n")
+    return _replace(src, "            out_slots, out_used)\n", "            out_slots, out_used, REP)\n")
 
 
 _TIMING = """import sys, time

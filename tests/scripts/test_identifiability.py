@@ -10,7 +10,7 @@ def _runs(module, config: str, best_f, f_truth, holdout, holdout_truth, evals=40
     rows = {"config": config, "objective": "innovation_nll", "drives": 4, "noise_realisations": 1, "free": 7,
             "seed": range(n), "evals": evals, "best_f": best_f, "f_truth": f_truth, "holdout_rmse_m": holdout,
             "holdout_rmse_truth_m": holdout_truth, "holdout_rmse_reference_m": 2.5, "ray_error_deg": 0.3,
-            "reference_ray_error_deg": 0.37}
+            "reference_ray_error_deg": 0.37, "decisions": "own"}
     for k in module.ERRORS:
         rows[k] = np.arange(n, dtype=float)
         rows[f"reference_{k}"] = 1.0
@@ -74,3 +74,13 @@ def test_each_run_is_held_out_with_its_own_filter_and_simulator_settings(load_sc
         assert np.isclose(got.loc[i, "holdout_rmse_m"], rmse[0], rtol=0, atol=1e-12)
         assert np.isclose(got.loc[i, "holdout_rmse_reference_m"], rmse[1], rtol=0, atol=1e-12)
     assert got.loc[0, "holdout_rmse_m"] != got.loc[1, "holdout_rmse_m"]  # the filter settings matter
+
+
+def test_imposed_decisions_are_their_own_row_after_the_filters_own_and_say_so(load_script):
+    module = load_script("identifiability")
+    imposed = _runs(module, "ref", best_f=[1.0] * 2, f_truth=[2.0] * 2, holdout=[1.0] * 2,
+                    holdout_truth=[1.0] * 2).assign(decisions="reference")
+    own = _runs(module, "own", best_f=[1.0] * 2, f_truth=[2.0] * 2, holdout=[1.0] * 2, holdout_truth=[1.0] * 2)
+    rows = module.markdown(module.summarise(pd.concat([imposed, own], ignore_index=True))).splitlines()
+    assert rows[2].startswith("| innovation_nll | 4 |")
+    assert rows[3].startswith("| innovation_nll (reference decisions) | 4 |")

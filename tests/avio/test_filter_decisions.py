@@ -1,0 +1,62 @@
+"""FilterConfig.outlier_decisions: the updates' decisions taken from a filter at the reference
+calibration and imposed on every filter of the batch, so that they do not jump with the
+calibration (README: "Where the runs end instead")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from avio.filter import FilterConfig, FilterError, prepare, run, set_threads
+from avio.sequence import Calibration
+from test_filter import make_circle_sequence
+from test_filter_batch import FIELDS, _candidates
+
+POSE = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "sigma", "b_a_mps2", "b_g_radps", "n_updates")
+
+
+@pytest.fixture(scope="module")
+def drive():
+    seq = make_circle_sequence(60, seed=3, pixel_noise_px=0.5, outlier_fraction=0.1)
+    return seq, FilterConfig(max_update_features=20)
+
+
+def test_the_recorded_decisions_are_the_features_each_update_used(drive):
+    seq, cfg = drive
+    prep = prepare(seq, cfg)
+    res = run(seq, _candidates(seq.reference_calibration, 5, seed=0), cfg, prep, record_used=True)
+    assert res.used.shape == (5, *prep.valid.shape) and not (res.used & ~prep.valid).any()
+    np.testing.assert_array_equal(res.used.sum(axis=(1, 2)), res.n_updates.sum(axis=1))
+    assert (res.n_outliers.sum() > 0) and run(seq, seq.reference_calibration, cfg, prep).used is None
+
+
+def test_at_the_reference_imposed_decisions_give_the_filters_own_estimates_bit_for_bit(drive):
+    seq, cfg = drive
+    own = run(seq, seq.reference_calibration, cfg)
+    imposed = run(seq, seq.reference_calibration, FilterConfig(max_update_features=20, outlier_decisions="reference"))
+    for name in POSE:
+        np.testing.assert_array_equal(getattr(imposed, name), getattr(own, name), err_msg=name)
+    assert own.n_outliers.sum() > 0 and imposed.n_outliers.sum() == 0  # nothing left to reject
+
+
+def test_imposed_decisions_are_the_same_candidates_for_the_whole_batch_and_a_batch_is_single_runs(drive):
+    seq, _ = drive
+    cfg = FilterConfig(max_update_features=20, outlier_decisions="reference")
+    prep = prepare(seq, cfg)
+    cal = _candidates(seq.reference_calibration, 6, seed=1)
+    set_threads(2)
+    batch = run(seq, cal, cfg, prep, record_used=True)
+    imposed = prep.imposed["valid"]
+    assert not (batch.used & ~imposed).any()  # every filter chose among the reference's features only
+    assert batch.n_outliers.sum() == 0
+    set_threads(1)
+    for i in range(len(cal)):
+        one = run(seq, Calibration(*(np.asarray(getattr(cal, k))[[i]] for k in Calibration.__dataclass_fields__)),
+                  cfg, prep)
+        for name in FIELDS:
+            np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i], err_msg=name)
+
+
+def test_an_unknown_decision_source_is_a_clear_error():
+    with pytest.raises(FilterError, match="outlier_decisions must be one of"):
+        FilterConfig(outlier_decisions="mine")
