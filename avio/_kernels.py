@@ -288,8 +288,9 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
     rejected, the update's NIS, log det S and residual count, its NLL contribution with the
     capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
-    feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used). ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws:
-    :func:`noise_workspace`, ows: :func:`outlier_workspace` (nothing is allocated here).
+    feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
+    ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws: :func:`noise_workspace`,
+    ows: :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
     avio/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
     """

@@ -60,3 +60,12 @@ def test_imposed_decisions_are_the_same_candidates_for_the_whole_batch_and_a_bat
 def test_an_unknown_decision_source_is_a_clear_error():
     with pytest.raises(FilterError, match="outlier_decisions must be one of"):
         FilterConfig(outlier_decisions="mine")
+
+
+def test_imposed_decisions_need_a_reference_calibration(drive):
+    from dataclasses import replace
+
+    seq, _ = drive
+    cfg = FilterConfig(max_update_features=20, outlier_decisions="reference")
+    with pytest.raises(FilterError, match="has no reference calibration"):
+        run(replace(seq, reference_calibration=None), seq.reference_calibration, cfg)
