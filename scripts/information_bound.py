@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -118,14 +119,25 @@ def measure(seeds, n_drives: int, step_scale: float = 1.0) -> dict:
 
 
 def subspace(full: Synthetic, tie_focal: bool, fixed: list[str], seed: int):
-    """(A (10, r), c (10,), decode) of a configuration's space inside the full local space:
-    full coordinates ``A y + c`` of its coordinates y (affine: read off by unit steps)."""
+    """(A (10, r), c (10,)) of a configuration's space inside the full local space: full
+    coordinates ``A y + c`` of its coordinates y (affine: read off by unit steps)."""
     sub = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local", tie_focal=tie_focal, fixed=fixed)
     y0 = sub.truth
     cols = [full.calibration_space.encode(sub.calibration_space.decode((y0 + e)[None]))[0] for e in np.eye(len(y0))]
     x0 = full.calibration_space.encode(sub.calibration_space.decode(y0[None]))[0]
     A = np.array(cols).T - x0[:, None]
     return A, x0 - A @ y0
+
+
+@lru_cache(maxsize=None)
+def _camera(seed: int) -> Synthetic:
+    """The full-space problem of one camera (built once: predict runs per K and configuration)."""
+    return Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local")
+
+
+@lru_cache(maxsize=None)
+def _camera_subspace(seed: int, tie_focal: bool, fixed: tuple[str, ...]):
+    return subspace(_camera(seed), tie_focal, list(fixed), seed)
 
 
 def predict(g: np.ndarray, H: np.ndarray, K: int, configs, seeds, draws: int, rng) -> dict:
@@ -138,9 +150,9 @@ def predict(g: np.ndarray, H: np.ndarray, K: int, configs, seeds, draws: int, rn
     for label, (tie, fixed) in configs.items():
         per = {k: [] for k in (*ERRORS, "ray_error_deg")}
         for seed in seeds:
-            full = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local")
+            full = _camera(seed)
             x_t = full.truth
-            A, c = subspace(full, tie, fixed, seed)
+            A, c = _camera_subspace(seed, tie, tuple(fixed))
             Hs = A.T @ Hm @ A
             if np.linalg.eigvalsh(Hs)[0] <= 0:  # a direction without a minimum: the bounds decide
                 for k in per:
