@@ -17,7 +17,10 @@ from bench.records import read_eval_log
 
 pytestmark = pytest.mark.slow
 
-FAST = ["problem=sphere", "budget.evals=96"]
+#: A small sweep; with its report (leaderboard, figures: ~2-3 s a run, tested in test_report*.py) only
+#: where the test reads it.
+REPORTED = ["problem=sphere", "budget.evals=96"]
+FAST = [*REPORTED, "report=false"]
 
 
 def bench(*args: str, cwd: Path, **kwargs) -> subprocess.CompletedProcess:
@@ -66,7 +69,7 @@ _BOARD_KEYS = ["problem", "optimizer", "n_runs", "n_failed", "best_f_median", "b
 
 
 def test_serial_and_joblib_parallel_sweeps_give_identical_leaderboards_but_for_wall_times(tmp_path):
-    common = [*FAST, "optimizer=random,one_plus_one", "seed=range(2)"]
+    common = [*REPORTED, "optimizer=random,one_plus_one", "seed=range(2)"]
     serial = bench(*common, f"hydra.sweep.dir={tmp_path / 'serial'}", cwd=tmp_path)
     parallel = bench(*common, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                      f"hydra.sweep.dir={tmp_path / 'parallel'}", cwd=tmp_path)
@@ -104,7 +107,7 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
     (tmp_path / "conf" / "optimizer").mkdir(parents=True)
     (tmp_path / "conf" / "optimizer" / "failing.yaml").write_text("name: failing\nparams:\n  batch_size: 8\n")
     env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    proc = bench(*FAST, "optimizer=failing,random", "seed=range(2)", "plugins=[failing_plugin]",
+    proc = bench(*REPORTED, "optimizer=failing,random", "seed=range(2)", "plugins=[failing_plugin]",
                  f"hydra.searchpath=[file://{tmp_path / 'conf'}]", f"hydra.sweep.dir={tmp_path / 's'}",
                  cwd=tmp_path, env=env)
     # the sweep goes on, its exit code says some job failed, and its last line counts them
@@ -174,9 +177,10 @@ def test_a_second_sweep_into_a_running_sweeps_folder_fails_fast_and_no_batch_is_
 
 
 def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
-    # defect 2: killing only the joblib parent left its workers running
+    # defect 2: killing only the joblib parent left its workers running. 40 batches of 0.2 s per
+    # job: the kill comes after 2, and the resumed rest takes ~8 s
     args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "seed=range(2)",
-            "budget.evals=3200", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 's'}"]
+            "budget.evals=1280", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 's'}"]
     parent = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=tmp_path, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     jobs = [tmp_path / "s" / "sphere" / "random" / f"seed{s}" for s in range(2)]
@@ -185,6 +189,7 @@ def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
         time.sleep(0.05)
     workers = [int((j / ".lock").read_text().split()[1]) for j in jobs]  # "pid N on host H (since T)"
     assert parent.pid not in workers
+    assert not any((j / "record.json").exists() for j in jobs)  # both still running when killed
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
     deadline = time.time() + 15
@@ -199,7 +204,7 @@ def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
     assert not alive, f"workers {sorted(alive)} still run after their sweep was killed"
     # and the sweep resumes from what they logged
     proc = bench(*[a for a in args if "delay" not in a], "problem.params.delay_s_per_batch=0.2",
-                 "budget.evals=3200", cwd=tmp_path)
+                 "budget.evals=1280", cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:]
 
 
