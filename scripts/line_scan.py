@@ -12,6 +12,10 @@ the bottom of a valley.
 
     python scripts/line_scan.py results/identifiability/innovation_nll_fourdrive_7free_1600evals_10seeds
         [--seeds 3] [--t 0 0.5 0.9 ...] [--fine 0.9 1.1 21] [--filter '{"outlier_decisions": "reference"}']
+        [--along dx --span 0.24 13]
+
+``--along VAR`` profiles the run's objective along one variable through its best point instead:
+is the best point the minimum along it, and how rough is the objective there?
 """
 
 from __future__ import annotations
@@ -43,23 +47,48 @@ def records(folder: Path, seeds: list[int] | None) -> list[dict]:
     return sorted(found, key=lambda r: r["seed"])
 
 
-def scan(record: dict, ts, filter_overrides: dict | None = None) -> dict[str, np.ndarray]:
-    """(len(ts),) f, and the features used and rejected over all drives, along the line from
-    the problem's truth (t = 0) to the record's best point (t = 1), clipped to the bounds
-    (filter_overrides: FilterConfig settings over the record's)."""
+def _problem(record: dict, filter_overrides: dict | None) -> Synthetic:
+    """The record's own problem without its held-out drive (filter_overrides: FilterConfig
+    settings over the record's)."""
     params = {k: _plain(v) for k, v in record["config"]["problem"]["params"].items()}
     if filter_overrides:
         params["filter"] = {**(params.get("filter") or {}), **filter_overrides}
-    problem = Synthetic(**{**params, "holdout": None})  # the held-out drive plays no part
-    x0, best = problem.truth, np.asarray(record["best_x"], float)
-    X = np.clip(x0 + np.asarray(ts, float)[:, None] * (best - x0), problem.space.lower, problem.space.upper)
-    cal = problem.calibration_space.decode(X)
+    return Synthetic(**{**params, "holdout": None})  # the held-out drive plays no part
+
+
+def _evaluate(problem: Synthetic, X: np.ndarray) -> dict[str, np.ndarray]:
+    """f (n,) at the points X (n, d) of the problem's space, clipped to its bounds, and the
+    features used and rejected over all its drives."""
+    cal = problem.calibration_space.decode(np.clip(X, problem.space.lower, problem.space.upper))
     f, _ = problem.score(cal)
     # run again for the decision counts: VioProblem.score keeps its FilterResults to itself (~2x a scan's cost)
     results = [problem.run_filter(cal, drive) for drive in problem.drives]
     used = sum(r.n_updates.sum(axis=1) for r in results)
     rejected = sum(r.n_outliers.sum(axis=1) for r in results)
-    return {"t": np.asarray(ts, float), "f": f, "used": used, "rejected": rejected}
+    return {"f": f, "used": used, "rejected": rejected}
+
+
+def scan(record: dict, ts, filter_overrides: dict | None = None) -> dict[str, np.ndarray]:
+    """(len(ts),) f, and the features used and rejected over all drives, along the line from
+    the problem's truth (t = 0) to the record's best point (t = 1), clipped to the bounds."""
+    problem = _problem(record, filter_overrides)
+    x0, best = problem.truth, np.asarray(record["best_x"], float)
+    return {"t": np.asarray(ts, float), **_evaluate(problem, x0 + np.asarray(ts, float)[:, None] * (best - x0))}
+
+
+def profile(record: dict, name: str, offsets, filter_overrides: dict | None = None) -> dict[str, np.ndarray]:
+    """The same along one variable of the run's space through its best point: at
+    ``best + offset e_name`` (offsets (n,) in the variable's unit); also the variable's error
+    there, ``best + offset - truth`` (the bounds clip it)."""
+    problem = _problem(record, filter_overrides)
+    names = list(problem.space.names)
+    if name not in names:
+        raise SystemExit(f"line_scan: --along {name}: not a free variable of this run's space ({', '.join(names)})")
+    i = names.index(name)
+    X = np.repeat(np.asarray(record["best_x"], float)[None], len(offsets), axis=0)
+    X[:, i] += np.asarray(offsets, float)
+    X = np.clip(X, problem.space.lower, problem.space.upper)
+    return {"error": X[:, i] - problem.truth[i], "unit": problem.space.units[i], **_evaluate(problem, X)}
 
 
 def main(argv=None) -> None:
@@ -71,15 +100,26 @@ def main(argv=None) -> None:
                         help="instead of --t: N evenly spaced points (e.g. around the best point: 0.9 1.1 21)")
     parser.add_argument("--filter", type=json.loads, default=None,
                         help='FilterConfig settings over the record\'s, e.g. \'{"outlier_decisions": "reference"}\'')
+    parser.add_argument("--along", metavar="VAR", help="instead of the line: the profile along this variable "
+                        "through the best point (e.g. dx), at --span offsets")
+    parser.add_argument("--span", type=float, nargs=2, metavar=("HALF_WIDTH", "N"), default=(0.24, 13),
+                        help="--along: N offsets from -HALF_WIDTH to +HALF_WIDTH, in the variable's unit")
     args = parser.parse_args(argv)
     ts = np.linspace(args.fine[0], args.fine[1], int(args.fine[2])) if args.fine else np.asarray(args.t)
     ts = np.unique(np.r_[0.0, ts])  # t = 0 (the truth) is the baseline of f
+    offsets = np.unique(np.r_[0.0, np.linspace(-args.span[0], args.span[0], int(args.span[1]))])
     set_threads(2)
     for record in records(args.folder, args.seeds):
-        out = scan(record, ts, args.filter)
         m = record["best_metrics"]
         print(f"seed {record['seed']}: best point {m['rotation_error_deg']:.2f} deg, "
               f"{m['principal_point_error_px']:.1f} px from the truth")
+        if args.along:
+            out = profile(record, args.along, offsets, args.filter)
+            at_best = out["f"][np.flatnonzero(offsets == 0.0)[0]]
+            for e, f, u, r in zip(out["error"], out["f"] - at_best, out["used"], out["rejected"]):
+                print(f"  {args.along} error {e:+8.4f} {out['unit']}  f - f(best) {f:+.2e}  used {u:6d}  rejected {r:5d}")
+            continue
+        out = scan(record, ts, args.filter)
         for t, f, u, r in zip(out["t"], out["f"] - out["f"][0], out["used"], out["rejected"]):
             print(f"  t {t:5.2f}  f - f(0) {f:+.2e}  used {u:6d}  rejected {r:5d}")
 
