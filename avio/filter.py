@@ -181,7 +181,7 @@ def _chi2_ppf(probability: float, dof: int) -> float:
 
 
 OUTLIER_MODES = ("ransac", "mahalanobis", "both", "none")
-DECISION_SOURCES = ("own", "reference")
+DECISION_SOURCES = ("own", "reference", "reference_all")
 
 
 @dataclass(frozen=True)
@@ -206,6 +206,12 @@ class FilterConfig:
         the calibration, and with them the objective (scripts/line_scan.py: 5e-4 nats per
         residual where 16 of ~45,000 decisions change); imposed ones do not. The likelihood
         then scores only those candidates (the valid features of avio/objectives.py).
+        "reference_gain": the same, and the transfer-gain check (``max_transfer_gain``) is the
+        reference's too: an imposed feature is used whatever its gain under the filter's own
+        calibration (its R_f grows with the gain, so its weight fades instead of jumping); only
+        non-finite linearisations and a missing baseline still drop features per filter. With
+        "reference" that check stayed per filter and left jumps of ~4e-4 nats per residual
+        along dx where 15-30 features crossed it (scripts/line_scan.py --along dx).
     rk4_max_step_s: longest RK4 sub-step of the once-per-sequence IMU integration, seconds.
     max_update_features: features per update (16: kitti00 15-796 and the simulated 540 m drive
         gave the same median RMSE with 12 and 16, worse with 10 and 24), chosen by bucketing
@@ -494,11 +500,11 @@ def _imposed(sequence: Sequence, config: FilterConfig, prep: _Prepared) -> tuple
     updates used as candidates, and a config that rejects nothing itself (FilterConfig)."""
     if "valid" not in prep.imposed:
         if sequence.reference_calibration is None:
-            raise FilterError(f"outlier_decisions='reference': sequence {sequence.name!r} has no reference calibration")
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: sequence {sequence.name!r} has no reference calibration")
         own = replace(config, outlier_decisions="own")
         ref = run(sequence, sequence.reference_calibration, own, prepared=prep, record_used=True)
         if ref.diverged[0]:  # its decisions would end there, and every filter's updates with them
-            raise FilterError(f"outlier_decisions='reference': the filter at the reference calibration diverges on "
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: the filter at the reference calibration diverges on "
                               f"{sequence.name!r} at frame {int(ref.diverged_at_frame[0])}")
         prep.imposed["valid"] = prep.valid & ref.used[0]
     return replace(prep, valid=prep.imposed["valid"]), replace(config, outlier_rejection="none")
@@ -517,7 +523,12 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     _check_input(sequence, calibrations)
     prep = prepared if prepared is not None else prepare(sequence, config)
     result_config = config
-    if config.outlier_decisions == "reference":
+    # reference_all: the imposed features are used whatever their transfer gain and baseline
+    # here (the reference judged both; R_f grows with the gain, so they fade, not jump).
+    everything = config.outlier_decisions == "reference_all"
+    gain_limit = np.inf if everything else float(config.max_transfer_gain)
+    min_parallax_m = 0.0 if everything else config.min_parallax_m
+    if config.outlier_decisions in ("reference", "reference_all"):
         prep, config = _imposed(sequence, config, prep)
     cal = calibrations
     n, N = len(cal), sequence.n_frames
@@ -538,7 +549,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
             pre.dp, pre.S, pre.SS,
             pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
             prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, float(c.pixel_sigma_px),
-            float(c.max_transfer_gain), c.min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
+            gain_limit, min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
             c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
             out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
             out_slots, out_used)

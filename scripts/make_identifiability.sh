@@ -15,7 +15,9 @@
 # scatter of the targets, and does the likelihood's lead hold?), and those two again with the
 # outlier decisions of a filter at the reference imposed on every calibration (suffix
 # _refdecisions, FilterConfig.outlier_decisions: do the runs end nearer the truth when the
-# objective no longer jumps with the decisions?). Then the summary table and figure
+# objective no longer jumps with the decisions?), and the likelihood's with the reference's
+# transfer-gain and baseline checks imposed too (suffix _refall, outlier_decisions=reference_all:
+# the last per-filter decisions, which left jumps along dx). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -37,7 +39,7 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
       innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds
       position_rmse_fourdrive_7free_1600evals_10seeds innovation_nll_fourdrive_7free_refdecisions_1600evals_10seeds
-      position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds)
+      position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds innovation_nll_fourdrive_7free_refall_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -46,6 +48,7 @@ for name in "$@"; do
   if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
   decisions=(); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
+  [[ $base == *_refall ]] && { decisions=('problem.params.filter={outlier_decisions: reference_all}'); base=${base%_refall}; }
   objective=${base%_*drive_*free}
   rest=${base#"${objective}_"}
   case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac

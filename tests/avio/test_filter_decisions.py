@@ -30,18 +30,20 @@ def test_the_recorded_decisions_are_the_features_each_update_used(drive):
     assert (res.n_outliers.sum() > 0) and run(seq, seq.reference_calibration, cfg, prep).used is None
 
 
-def test_at_the_reference_imposed_decisions_give_the_filters_own_estimates_bit_for_bit(drive):
+@pytest.mark.parametrize("source", ["reference", "reference_all"])
+def test_at_the_reference_imposed_decisions_give_the_filters_own_estimates_bit_for_bit(drive, source):
     seq, cfg = drive
     own = run(seq, seq.reference_calibration, cfg)
-    imposed = run(seq, seq.reference_calibration, FilterConfig(max_update_features=20, outlier_decisions="reference"))
+    imposed = run(seq, seq.reference_calibration, FilterConfig(max_update_features=20, outlier_decisions=source))
     for name in POSE:
         np.testing.assert_array_equal(getattr(imposed, name), getattr(own, name), err_msg=name)
     assert own.n_outliers.sum() > 0 and imposed.n_outliers.sum() == 0  # nothing left to reject
 
 
-def test_imposed_decisions_are_the_same_candidates_for_the_whole_batch_and_a_batch_is_single_runs(drive):
+@pytest.mark.parametrize("source", ["reference", "reference_all"])
+def test_imposed_decisions_are_the_same_candidates_for_the_whole_batch_and_a_batch_is_single_runs(drive, source):
     seq, _ = drive
-    cfg = FilterConfig(max_update_features=20, outlier_decisions="reference")
+    cfg = FilterConfig(max_update_features=20, outlier_decisions=source)
     prep = prepare(seq, cfg)
     cal = _candidates(seq.reference_calibration, 6, seed=1)
     set_threads(2)
@@ -55,6 +57,22 @@ def test_imposed_decisions_are_the_same_candidates_for_the_whole_batch_and_a_bat
                   cfg, prep)
         for name in FIELDS:
             np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i], err_msg=name)
+
+
+def test_with_reference_all_every_filter_uses_every_imposed_feature_whatever_its_gain_and_baseline(drive):
+    seq, _ = drive
+    cal = _candidates(seq.reference_calibration, 6, seed=2)
+    strict = FilterConfig(max_update_features=20, outlier_decisions="reference", max_transfer_gain=2.0)
+    res = run(seq, cal, strict, record_used=True)
+    imposed = prepare(seq, strict)
+    run(seq, seq.reference_calibration, strict, imposed)  # makes the imposed features
+    assert (res.used[~res.diverged] != imposed.imposed["valid"]).any()  # a strict gain check drops some per filter
+    every = FilterConfig(max_update_features=20, outlier_decisions="reference_all", max_transfer_gain=2.0)
+    prep = prepare(seq, every)
+    res = run(seq, cal, every, prep, record_used=True)
+    going = ~res.diverged  # a diverged filter records no decisions from its divergence on
+    assert going.sum() >= 4
+    np.testing.assert_array_equal(res.used[going], np.broadcast_to(prep.imposed["valid"], res.used[going].shape))
 
 
 def test_an_unknown_decision_source_is_a_clear_error():
