@@ -206,12 +206,13 @@ class FilterConfig:
         the calibration, and with them the objective (scripts/line_scan.py: 5e-4 nats per
         residual where 16 of ~45,000 decisions change); imposed ones do not. The likelihood
         then scores only those candidates (the valid features of avio/objectives.py).
-        "reference_gain": the same, and the transfer-gain check (``max_transfer_gain``) is the
-        reference's too: an imposed feature is used whatever its gain under the filter's own
-        calibration (its R_f grows with the gain, so its weight fades instead of jumping); only
-        non-finite linearisations and a missing baseline still drop features per filter. With
-        "reference" that check stayed per filter and left jumps of ~4e-4 nats per residual
-        along dx where 15-30 features crossed it (scripts/line_scan.py --along dx).
+        "reference_all": the same, and the transfer-gain and baseline checks
+        (``max_transfer_gain``, ``min_parallax_m``) are the reference's too: an imposed feature
+        is used whatever its gain or the predicted baseline under the filter's own calibration
+        (its R_f grows with the gain, so its weight fades instead of jumping); only non-finite
+        linearisations still drop features per filter. With "reference" those checks stay per
+        filter and left jumps of ~4e-4 nats per residual along dx where 15-30 features crossed
+        them (scripts/line_scan.py --along dx).
     rk4_max_step_s: longest RK4 sub-step of the once-per-sequence IMU integration, seconds.
     max_update_features: features per update (16: kitti00 15-796 and the simulated 540 m drive
         gave the same median RMSE with 12 and 16, worse with 10 and 24), chosen by bucketing
