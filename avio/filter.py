@@ -501,12 +501,13 @@ def _imposed(sequence: Sequence, config: FilterConfig, prep: _Prepared) -> tuple
     updates used as candidates, and a config that rejects nothing itself (FilterConfig)."""
     if "valid" not in prep.imposed:
         if sequence.reference_calibration is None:
-            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: sequence {sequence.name!r} has no reference calibration")
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: sequence {sequence.name!r} has no "
+                              "reference calibration")
         own = replace(config, outlier_decisions="own")
         ref = run(sequence, sequence.reference_calibration, own, prepared=prep, record_used=True)
         if ref.diverged[0]:  # its decisions would end there, and every filter's updates with them
-            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: the filter at the reference calibration diverges on "
-                              f"{sequence.name!r} at frame {int(ref.diverged_at_frame[0])}")
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: the filter at the reference "
+                              f"calibration diverges on {sequence.name!r} at frame {int(ref.diverged_at_frame[0])}")
         prep.imposed["valid"] = prep.valid & ref.used[0]
     return replace(prep, valid=prep.imposed["valid"]), replace(config, outlier_rejection="none")
 

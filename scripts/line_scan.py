@@ -117,7 +117,8 @@ def main(argv=None) -> None:
             out = profile(record, args.along, offsets, args.filter)
             at_best = out["f"][np.flatnonzero(offsets == 0.0)[0]]
             for e, f, u, r in zip(out["error"], out["f"] - at_best, out["used"], out["rejected"]):
-                print(f"  {args.along} error {e:+8.4f} {out['unit']}  f - f(best) {f:+.2e}  used {u:6d}  rejected {r:5d}")
+                print(f"  {args.along} error {e:+8.4f} {out['unit']}  f - f(best) {f:+.2e}  used {u:6d}  "
+                      f"rejected {r:5d}")
             continue
         out = scan(record, ts, args.filter)
         for t, f, u, r in zip(out["t"], out["f"] - out["f"][0], out["used"], out["rejected"]):
