@@ -530,7 +530,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     everything = config.outlier_decisions == "reference_all"
     gain_limit = np.inf if everything else float(config.max_transfer_gain)
     min_parallax_m = 0.0 if everything else config.min_parallax_m
-    if config.outlier_decisions in ("reference", "reference_all"):
+    if config.outlier_decisions != "own":  # imposed from the reference
         prep, config = _imposed(sequence, config, prep)
     cal = calibrations
     n, N = len(cal), sequence.n_frames

@@ -57,9 +57,9 @@ def _problem(record: dict, filter_overrides: dict | None) -> Synthetic:
 
 
 def _evaluate(problem: Synthetic, X: np.ndarray) -> dict[str, np.ndarray]:
-    """f (n,) at the points X (n, d) of the problem's space, clipped to its bounds, and the
+    """f (n,) at the points X (n, d) of the problem's space (inside its bounds), and the
     features used and rejected over all its drives."""
-    cal = problem.calibration_space.decode(np.clip(X, problem.space.lower, problem.space.upper))
+    cal = problem.calibration_space.decode(X)
     f, _ = problem.score(cal)
     # run again for the decision counts: VioProblem.score keeps its FilterResults to itself (~2x a scan's cost)
     results = [problem.run_filter(cal, drive) for drive in problem.drives]
@@ -73,7 +73,8 @@ def scan(record: dict, ts, filter_overrides: dict | None = None) -> dict[str, np
     the problem's truth (t = 0) to the record's best point (t = 1), clipped to the bounds."""
     problem = _problem(record, filter_overrides)
     x0, best = problem.truth, np.asarray(record["best_x"], float)
-    return {"t": np.asarray(ts, float), **_evaluate(problem, x0 + np.asarray(ts, float)[:, None] * (best - x0))}
+    X = np.clip(x0 + np.asarray(ts, float)[:, None] * (best - x0), problem.space.lower, problem.space.upper)
+    return {"t": np.asarray(ts, float), **_evaluate(problem, X)}
 
 
 def profile(record: dict, name: str, offsets, filter_overrides: dict | None = None) -> dict[str, np.ndarray]:
