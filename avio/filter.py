@@ -123,7 +123,7 @@ def threads() -> int:
 #: Measured first-run compile time of the kernel on the 2-core development machine, seconds
 #: (scripts/bench_filter.py speed prints it), quoted in the message before a cold compile.
 COMPILE_ESTIMATE_S = 40
-_HEARTBEAT_S = 10.0  # seconds between the "still compiling" lines
+_HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
 _kernel_loaded = False
 
 
@@ -138,7 +138,7 @@ def _kernel_cached() -> bool | None:
 @contextmanager
 def _announce_compile():
     """Say so on stderr when the first kernel call of the process will compile it (a cold
-    numba cache), print a heartbeat every 10 s while it does and how long it took."""
+    numba cache), print a heartbeat every 5 s while it does and how long it took."""
     global _kernel_loaded
     cached = False if _kernel_loaded else _kernel_cached()
     if _kernel_loaded or cached:

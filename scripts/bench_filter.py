@@ -266,24 +266,25 @@ def speed(args, config: FilterConfig) -> None:
     print(f"load average at end {os.getloadavg()[0]:.2f}")
 
 
-def _scaling(args, config: FilterConfig) -> None:
-    """ms per evaluation at batch 64 (default threads) against frames and features per update."""
-    n, reps = 64, max(3, args.repeats // 2)
+def _scaling(args, config: FilterConfig, lasts=(114, 214, 414, 796), features=(8, 16, 24), n: int = 64) -> None:
+    """ms per evaluation at batch n (default threads) against frames (kitti00 from frame 15 to
+    each of ``lasts``) and, on the last window, against the features per update."""
+    reps = max(3, args.repeats // 2)
     cals = None
     parts = []
-    for last in (114, 214, 414, 796):
+    for last in lasts:
         seq = _kitti(args, 15, last)
         cals = _candidates(seq.truth_calibration, n, seed=n)
-        wall, _ = _time_batch(seq, cals, config, prepare(seq, config), reps)
+        wall, _ = _time_batch(seq, [cals], config, prepare(seq, config), reps)
         parts.append(f"{seq.n_frames} frames {1e3 * wall / n:.2f}")
     print(f"scaling, batch {n}, ms per evaluation: " + ", ".join(parts), flush=True)
     parts = []
-    for F in (8, 16, 24):
+    for F in features:
         cfg = replace(config, max_update_features=F)
         prep = prepare(seq, cfg)
-        wall, _ = _time_batch(seq, cals, cfg, prep, reps)
+        wall, _ = _time_batch(seq, [cals], cfg, prep, reps)
         parts.append(f"<= {F} features ({prep.valid.sum(1).mean():.1f} used) {1e3 * wall / n:.2f}")
-    print(f"scaling, batch {n}, 782 frames, ms per evaluation: " + ", ".join(parts), flush=True)
+    print(f"scaling, batch {n}, {seq.n_frames} frames, ms per evaluation: " + ", ".join(parts), flush=True)
 
 
 def profile(args, config: FilterConfig) -> None:
