@@ -9,7 +9,13 @@ rays of the same pixels under the calibration and the truth), which a principal-
 the rotation that compensates it do not add up in, and the held-out RMSE against the truth's,
 paired seed by seed, and whether each run's best f is below f(truth) (the optimiser reached the
 objective's level at the truth). Writes ``summary.csv``, ``summary.md`` (the README's table),
-``summary.png`` and ``runs.csv`` into the folder. The held-out
+``summary.png`` and ``runs.csv`` into the folder.
+
+    python scripts/identifiability.py results/identifiability --compare CONFIG_A CONFIG_B
+
+reads the folder's ``runs.csv`` instead and compares two configurations seed by seed (the seeds
+both have): for each error, the ray error and the held-out RMSE, the medians, in how many seeds
+A is lower than B and the paired two-sided Wilcoxon signed-rank p (bench.stats.compare). The held-out
 drive of data seed s is the same camera on an independent ~928 m drive
 (bench/problems/synthetic.py); it is evaluated here, once per seed, for every configuration's
 calibration and the reference in one batch.
@@ -32,6 +38,7 @@ from avio.calibration_error import calibration_errors, ray_error_deg  # noqa: E4
 from avio.metrics import position_rmse_objective  # noqa: E402
 from avio.sequence import Calibration  # noqa: E402
 from bench.problems.synthetic import Synthetic, SyntheticParams  # noqa: E402
+from bench import stats  # noqa: E402
 from bench.problems.vio import _plain  # noqa: E402
 
 ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
@@ -178,10 +185,47 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     fig.savefig(path.with_suffix(".pdf"))
 
 
+COMPARED = ERRORS + ("ray_error_deg", "holdout_rmse_m")
+
+
+def compare_configs(runs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
+    """Configurations a and b of ``runs`` (runs.csv's rows) paired by seed: per quantity of
+    COMPARED, the medians, how often a is lower and the paired Wilcoxon p. Unknown names or no
+    common seed: ValueError naming them."""
+    known = set(runs.config)
+    missing = [c for c in (a, b) if c not in known]
+    if missing:
+        raise ValueError(f"no runs of {missing} in runs.csv; configurations: {sorted(known)}")
+    pair = runs[runs.config == a].merge(runs[runs.config == b], on="seed", suffixes=("_a", "_b"))
+    if pair.empty:
+        raise ValueError(f"{a} and {b} have no seed in common")
+    rows = []
+    for k in COMPARED:
+        x, y = pair[f"{k}_a"].to_numpy(), pair[f"{k}_b"].to_numpy()
+        _, _, p = stats.compare(x, y, paired=True)
+        rows.append({"quantity": k, "median_a": np.median(x), "median_b": np.median(y),
+                     "a_lower": f"{int((x < y).sum())}/{len(pair)}", "wilcoxon_p": p})
+    return pd.DataFrame(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path)
-    folder = parser.parse_args().folder
+    parser.add_argument("--compare", nargs=2, metavar=("CONFIG_A", "CONFIG_B"),
+                        help="compare two configurations of the folder's runs.csv seed by seed")
+    args = parser.parse_args()
+    folder = args.folder
+    if args.compare:
+        a, b = args.compare
+        try:
+            if not (folder / "runs.csv").is_file():
+                raise ValueError(f"{folder / 'runs.csv'} is absent (run the summary first)")
+            table = compare_configs(pd.read_csv(folder / "runs.csv"), a, b)
+        except ValueError as e:
+            print(f"identifiability --compare: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
+        print(f"A = {a}\nB = {b}, paired by seed\n" + table.to_string(index=False, float_format="%.4g"))
+        return
     runs = load(folder)
     runs = runs.join(held_out(runs))
     runs.drop(columns=["params", "best_x"]).to_csv(folder / "runs.csv", index=False, float_format="%.6g")

@@ -1,9 +1,11 @@
-"""scripts/identifiability.py: the study's summary, one row per configuration folder."""
+"""scripts/identifiability.py: the study's summary, one row per configuration folder; two configurations
+compared seed by seed."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 def _runs(module, config: str, best_f, f_truth, holdout, holdout_truth, evals=400) -> pd.DataFrame:
     n = len(best_f)
@@ -84,3 +86,26 @@ def test_imposed_decisions_are_their_own_row_after_the_filters_own_and_say_so(lo
     rows = module.markdown(module.summarise(pd.concat([imposed, own], ignore_index=True))).splitlines()
     assert rows[2].startswith("| innovation_nll | 4 |")
     assert rows[3].startswith("| innovation_nll (reference decisions) | 4 |")
+
+
+def test_compare_pairs_two_configurations_by_seed(load_script):
+    module = load_script("identifiability")
+    a = _runs(module, "a", best_f=[1.0] * 6, f_truth=[1.0] * 6, holdout=[1.0] * 6, holdout_truth=[1.0] * 6)
+    b = _runs(module, "b", best_f=[1.0] * 7, f_truth=[1.0] * 7, holdout=[2.0] * 7, holdout_truth=[1.0] * 7)
+    b["rotation_error_deg"] = [0.5, 2.0, 3.0, 4.0, 5.0, 6.0, 0.0]  # a's: 0, 1, ..., 5; seed 6 only in b
+    table = module.compare_configs(pd.concat([a, b], ignore_index=True), "a", "b").set_index("quantity")
+    rot = table.loc["rotation_error_deg"]
+    assert rot.a_lower == "6/6" and rot.median_a == 2.5 and rot.median_b == 3.5
+    assert 0.0 < rot.wilcoxon_p < 0.05  # six of six lower: p = 2 / 2^6
+    assert table.loc["focal_error_px"].a_lower == "0/6" and table.loc["focal_error_px"].wilcoxon_p == 1.0
+    assert table.loc["holdout_rmse_m"].a_lower == "6/6"
+    with pytest.raises(ValueError, match=r"no runs of \['c'\]"):
+        module.compare_configs(a, "a", "c")
+
+
+def test_compare_without_runs_csv_is_exit_2(load_script, tmp_path, monkeypatch, capsys):
+    module = load_script("identifiability")
+    monkeypatch.setattr("sys.argv", ["identifiability.py", str(tmp_path), "--compare", "a", "b"])
+    with pytest.raises(SystemExit) as e:
+        module.main()
+    assert e.value.code == 2 and "runs.csv is absent" in capsys.readouterr().err
