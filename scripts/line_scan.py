@@ -60,9 +60,8 @@ def _evaluate(problem: Synthetic, X: np.ndarray) -> dict[str, np.ndarray]:
     """f (n,) at the points X (n, d) of the problem's space (inside its bounds), and the
     features used and rejected over all its drives."""
     cal = problem.calibration_space.decode(X)
-    f, _ = problem.score(cal)
-    # run again for the decision counts: VioProblem.score keeps its FilterResults to itself (~2x a scan's cost)
     results = [problem.run_filter(cal, drive) for drive in problem.drives]
+    f, _ = problem.score_results(results, problem.drives)
     used = sum(r.n_updates.sum(axis=1) for r in results)
     rejected = sum(r.n_outliers.sum(axis=1) for r in results)
     return {"f": f, "used": used, "rejected": rejected}

@@ -324,7 +324,11 @@ class VioProblem:
         """f (n,) of the calibrations over ``drives`` (default: the calibration drives; one batch
         per drive) and the uncharged metrics (n,) beside it."""
         drives = self.drives if drives is None else drives
-        results = [self.run_filter(cal, s) for s in drives]
+        return self.score_results([self.run_filter(cal, s) for s in drives], drives)
+
+    def score_results(self, results: list, drives: tuple[Sequence, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`score` from the FilterResults (one per drive, in order) of runs already made
+        (for callers that also read the results, e.g. scripts/line_scan.py's decision counts)."""
         truths = [s.truth for s in drives]
         penalty = self.divergence_penalty_m
         rmse = pooled_position_rmse(results, truths, penalty)

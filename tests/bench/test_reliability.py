@@ -203,8 +203,7 @@ def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
         time.sleep(0.1)
     assert not alive, f"workers {sorted(alive)} still run after their sweep was killed"
     # and the sweep resumes from what they logged
-    proc = bench(*[a for a in args if "delay" not in a], "problem.params.delay_s_per_batch=0.2",
-                 "budget.evals=1280", cwd=tmp_path)
+    proc = bench(*args, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:]
 
 

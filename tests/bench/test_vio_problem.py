@@ -189,6 +189,10 @@ def test_several_drives_pool_the_objective_over_every_frame():
     np.testing.assert_allclose(f, np.sqrt((frames[0] * per[0] ** 2 + frames[1] * per[1] ** 2) / frames.sum()),
                                rtol=1e-12)
     np.testing.assert_allclose(metrics["position_rmse_m"], f)
+    # scoring runs already made gives the same as scoring the calibrations
+    f_again, metrics_again = two.score_results([two.run_filter(cal, s) for s in two.drives], two.drives)
+    np.testing.assert_array_equal(f_again, f)
+    assert all(np.array_equal(metrics_again[k], metrics[k], equal_nan=True) for k in metrics_again)
 
 
 def test_fixed_and_tied_variables_leave_the_space_and_follow_the_reference(problem):
