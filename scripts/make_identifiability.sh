@@ -18,8 +18,8 @@
 # objective no longer jumps with the decisions?), and the likelihood's with the reference's
 # transfer-gain and baseline checks imposed too (suffix _refall, outlier_decisions=reference_all:
 # the last per-filter decisions, which left jumps along dx), and the likelihood's own- and
-# reference_all-decision ones with seeds 0-19 (does reference_all's lead over ten seeds hold
-# over twenty?). Then the summary table and figure
+# reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
+# hold over twenty?). Then the summary table and figure
 # (scripts/identifiability.py).
 #   bash scripts/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -42,7 +42,8 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds
       position_rmse_fourdrive_7free_1600evals_10seeds innovation_nll_fourdrive_7free_refdecisions_1600evals_10seeds
       position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds innovation_nll_fourdrive_7free_refall_1600evals_10seeds
-      innovation_nll_fourdrive_7free_1600evals_20seeds innovation_nll_fourdrive_7free_refall_1600evals_20seeds)
+      innovation_nll_fourdrive_7free_1600evals_20seeds innovation_nll_fourdrive_7free_refall_1600evals_20seeds
+      position_rmse_fourdrive_7free_1600evals_20seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
