@@ -230,7 +230,7 @@ def speed(args, config: FilterConfig) -> None:
             r = per_eval[a] / per_eval[b]
             return f"{np.median(r):.2f}x ({r.min():.2f}-{r.max():.2f})"
 
-        # the first ratio is the product of the other two: what batching buys one thread, and the threads
+        # per repeat the first ratio is the product of the other two: what batching buys one thread, and the threads
         print(f"batch 64 x {t_hi} threads vs batch 1 x {t_lo} thread, per evaluation, paired by repeat: "
               f"{paired((t_lo, 1), (t_hi, 64))}; batch 64 vs batch 1 at {t_lo} thread: "
               f"{paired((t_lo, 1), (t_lo, 64))}; batch 64 at {t_hi} vs {t_lo} thread: "
