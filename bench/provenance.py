@@ -47,6 +47,28 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def cpu_features() -> dict:
+    """What a record's last bits depend on beside the code and the versions: the vector
+    extensions numpy dispatches its math to (``numpy``: the highest found, e.g. AVX512_ICL or
+    AVX2), OpenBLAS's kernel set (``openblas``, e.g. SkylakeX or Haswell) and the CPU LLVM compiles
+    the filter for (``llvm``, e.g. znver4). A drive simulated with AVX-512 differs in the last bits
+    from one simulated with AVX2 (README, "Bit-exact reproduction on another machine")."""
+    import numpy as np
+    from llvmlite import binding
+    from threadpoolctl import threadpool_info
+
+    try:  # numpy keeps them private: numpy._core from 2.0, numpy.core before
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:
+        from numpy.core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    # __cpu_dispatch__ lists the extensions from the lowest to the highest; numpy's OpenBLAS is
+    # loaded with numpy (imported above), where threadpoolctl reads its kernel set
+    found = [name for name in __cpu_dispatch__ if __cpu_features__.get(name)]
+    blas = [i.get("architecture") for i in threadpool_info() if i.get("internal_api") == "openblas"]
+    return {"numpy": found[-1] if found else "baseline", "openblas": blas[0] if blas else None,
+            "llvm": binding.get_host_cpu_name()}
+
+
 def _version(package: str) -> str | None:
     try:
         return metadata.version(package)
@@ -57,10 +79,12 @@ def _version(package: str) -> str | None:
 @functools.lru_cache(maxsize=1)
 def provenance() -> dict:
     """``{"git_commit", "versions", "machine"}`` for records (computed once per process); versions
-    include numba's (it compiles the filter) and machine the CPU model it compiles for."""
+    include numba's (it compiles the filter) and machine the CPU model it compiles for and the
+    vector extensions the floating-point bits depend on (:func:`cpu_features`)."""
     return {
         "git_commit": _git_commit(),
         "versions": {"python": platform.python_version(), **{p: _version(p) for p in _PACKAGES}},
         "machine": {"node": platform.node(), "platform": platform.platform(),
-                    "processor": platform.machine(), "cpu_model": cpu_model(), "cpus": os.cpu_count()},
+                    "processor": platform.machine(), "cpu_model": cpu_model(), "cpus": os.cpu_count(),
+                    "cpu_features": cpu_features()},
     }

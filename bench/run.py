@@ -164,6 +164,12 @@ def _flatten(node, prefix: str = "") -> dict:
         for key, value in node.items():
             out.update(_flatten(value, f"{prefix}.{key}" if prefix else str(key)))
         return out or {prefix: {}}
+    if isinstance(node, list) and node and all(isinstance(item, dict) for item in node):
+        # e.g. a problem's drives: name the one that differs, not the whole list
+        out = {}
+        for i, item in enumerate(node):
+            out.update(_flatten(item, f"{prefix}[{i}]"))
+        return out
     return {prefix: node}
 
 
@@ -263,8 +269,13 @@ def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | No
     if previous is None or previous.get("status") != "ok":
         return None, None  # never finished, or failed: run (resuming its log) again
     if previous.get("job_key") != header["job_key"]:
-        raise RunError(f"{job_dir} already holds a different job, finished (job_key "
-                       f"{previous.get('job_key')} != {header['job_key']}); choose another hydra.sweep.dir")
+        try:
+            on_disk = read_job_file(job_dir)
+        except RecordError:
+            on_disk = None
+        why = (header_mismatch(on_disk, header) if on_disk is not None else None) or (
+            f"job_key {previous.get('job_key')} != {header['job_key']}")
+        raise RunError(f"{job_dir} already holds a different job, finished ({why}); choose another hydra.sweep.dir")
     return previous, None
 
 

@@ -19,7 +19,7 @@ from bench import run as run_module
 from bench.job import run_configured_job
 from bench.problems.analytic import AnalyticProblem
 from bench.records import JOB_FILE, EvalLog, read_eval_log, read_record
-from bench.run import Budget, RunError, _replay, run_job
+from bench.run import Budget, RunError, _replay, identity_differences, run_job
 from optimizers.random_search import RandomSearch
 
 
@@ -86,6 +86,23 @@ def test_resume_with_other_problem_data_is_refused(tmp_path):
     with pytest.raises(RunError, match=r"its data differ: data_seed: '<unset>' -> 1"):
         _run(job, evals=256, problem=OtherDrive("sphere"))
     assert _snapshot(job) == before
+
+
+def test_a_finished_job_with_other_drives_is_refused_naming_the_drive_that_differs(tmp_path):
+    # a drive simulated with other vector extensions (README: bit-exact on one machine) differs
+    # only in its content hash: the refusal says which drive's, not only that the job keys differ
+    def drives(hashes):
+        class Drives(AnalyticProblem):
+            @property
+            def identity(self):
+                return {**super().identity, "drives": [{"name": "sim", "content_hash": h} for h in hashes]}
+        return Drives("sphere")
+
+    job = tmp_path / "job"
+    _run(job, evals=64, problem=drives(["aa", "bb"]))
+    with pytest.raises(RunError, match=r"finished \(its data differ: drives\[1\]\.content_hash: 'bb' -> 'cc'\)"):
+        _run(job, evals=64, problem=drives(["aa", "cc"]))
+    assert identity_differences({"fixed": ["dy", "dz"]}, {"fixed": ["dz"]}) == "fixed: ['dy', 'dz'] -> ['dz']"
 
 
 def test_resume_after_a_code_change_is_refused(tmp_path):
@@ -281,6 +298,7 @@ def test_provenance_names_numba_and_the_cpu_model(tmp_path):
 
     assert record["versions"]["numba"] == numba.__version__
     assert record["machine"]["cpu_model"] and record["machine"]["cpu_model"] != "unknown"
+    assert set(record["machine"]["cpu_features"]) == {"numpy", "openblas", "llvm"}
 
 
 def test_progress_bar_shows_evaluations_best_f_and_is_redrawn_during_a_long_batch(tmp_path, capsys):
