@@ -52,8 +52,8 @@ def cpu_features() -> dict:
     extensions numpy dispatches its math to (``numpy``: the highest found, e.g. AVX512_ICL or
     AVX2), OpenBLAS's kernel set (``openblas``, e.g. SkylakeX or Haswell) and the CPU LLVM compiles
     the filter for (``llvm``, e.g. znver4). A drive simulated with AVX-512 differs in the last bits
-    from one simulated with AVX2 (README, "Bit-exact reproduction on another machine")."""
-    import numpy as np
+    from one simulated with AVX2 (README: "Bit-exact on one machine, not across vector extensions")."""
+    import numpy  # noqa: F401  (loads numpy's OpenBLAS, whose kernel set threadpoolctl reads)
     from llvmlite import binding
     from threadpoolctl import threadpool_info
 
@@ -61,8 +61,7 @@ def cpu_features() -> dict:
         from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
     except ImportError:
         from numpy.core._multiarray_umath import __cpu_dispatch__, __cpu_features__
-    # __cpu_dispatch__ lists the extensions from the lowest to the highest; numpy's OpenBLAS is
-    # loaded with numpy (imported above), where threadpoolctl reads its kernel set
+    # __cpu_dispatch__ lists the extensions from the lowest to the highest
     found = [name for name in __cpu_dispatch__ if __cpu_features__.get(name)]
     blas = [i.get("architecture") for i in threadpool_info() if i.get("internal_api") == "openblas"]
     return {"numpy": found[-1] if found else "baseline", "openblas": blas[0] if blas else None,

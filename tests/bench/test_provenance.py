@@ -46,7 +46,8 @@ def _features_in(env: dict) -> dict:
     return json.loads(out)
 
 
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not cpu_features()["numpy"].startswith(("AVX2", "AVX512")),
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64")
+                    or not cpu_features()["numpy"].startswith(("AVX2", "AVX512")),
                     reason="the AVX2 recipe is for x86-64 machines with AVX2")
 def test_cpu_features_name_what_numpy_and_openblas_dispatch_to():
     # what README's bit-exact reproduction sets: numpy without AVX-512, OpenBLAS's Haswell kernels
