@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from avio.sequence import Calibration
+from avio.calibration import Calibration
 
 R_VELO_IMU = np.array(
     [

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from avio.calibration import Calibration
+
 
 class SequenceError(ValueError):
     """A sequence (or a part of it) is malformed; the message names what and where."""
@@ -31,85 +33,6 @@ def content_hash(arrays: list[np.ndarray], extra: dict | None = None) -> str:
         digest.update(f"{array.dtype}{array.shape}".encode())
         digest.update(array.tobytes())
     return digest.hexdigest()
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """Camera intrinsics and camera–IMU extrinsics of ``n`` candidate calibrations.
-
-    fx_px, fy_px, cx_px, cy_px: (n,) pinhole intrinsics in pixels (skew 0, Eq. 8).
-    R_cam_imu: (n, 3, 3) maps IMU-frame vectors into the camera frame (Eq. 9).
-    p_imu_cam_m: (n, 3) camera origin expressed in the IMU frame, metres (Eq. 10).
-    time_offset_s: (n,) camera clock offset: a frame stamped t was exposed at IMU time
-        ``t + time_offset_s``.
-    """
-
-    fx_px: np.ndarray
-    fy_px: np.ndarray
-    cx_px: np.ndarray
-    cy_px: np.ndarray
-    R_cam_imu: np.ndarray
-    p_imu_cam_m: np.ndarray
-    time_offset_s: np.ndarray
-
-    @classmethod
-    def single(
-        cls,
-        fx_px: float,
-        fy_px: float,
-        cx_px: float,
-        cy_px: float,
-        R_cam_imu: np.ndarray,
-        p_imu_cam_m: np.ndarray,
-        time_offset_s: float = 0.0,
-    ) -> "Calibration":
-        """One calibration as a batch of size 1."""
-        return cls(
-            fx_px=np.array([fx_px], float),
-            fy_px=np.array([fy_px], float),
-            cx_px=np.array([cx_px], float),
-            cy_px=np.array([cy_px], float),
-            R_cam_imu=np.asarray(R_cam_imu, float).reshape(1, 3, 3),
-            p_imu_cam_m=np.asarray(p_imu_cam_m, float).reshape(1, 3),
-            time_offset_s=np.array([time_offset_s], float),
-        )
-
-    @classmethod
-    def stack(cls, calibrations: list["Calibration"]) -> "Calibration":
-        """Concatenate batches along the calibration axis."""
-        names = [f for f in cls.__dataclass_fields__]
-        return cls(**{k: np.concatenate([getattr(c, k) for c in calibrations]) for k in names})
-
-    def __len__(self) -> int:
-        return len(self.fx_px)
-
-    def __getitem__(self, index) -> "Calibration":
-        """Sub-batch (an int index keeps the batch axis, with size 1)."""
-        if isinstance(index, (int, np.integer)):
-            index = slice(index, index + 1) if index != -1 else slice(-1, None)
-        names = [f for f in self.__dataclass_fields__]
-        return Calibration(**{k: getattr(self, k)[index] for k in names})
-
-    def repeat(self, n: int) -> "Calibration":
-        """A batch of size 1 repeated ``n`` times."""
-        if len(self) != 1:
-            raise SequenceError(f"repeat() needs a batch of size 1, got {len(self)}")
-        names = [f for f in self.__dataclass_fields__]
-        return Calibration(
-            **{k: np.repeat(getattr(self, k), n, axis=0) for k in names}
-        )
-
-    @property
-    def K(self) -> np.ndarray:
-        """(n, 3, 3) camera matrices."""
-        n = len(self)
-        K = np.zeros((n, 3, 3))
-        K[:, 0, 0] = self.fx_px
-        K[:, 1, 1] = self.fy_px
-        K[:, 0, 2] = self.cx_px
-        K[:, 1, 2] = self.cy_px
-        K[:, 2, 2] = 1.0
-        return K
 
 
 @dataclass(frozen=True)

@@ -24,9 +24,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from bench import callbacks
-from bench.job import exit_with_the_sweep, plain, run_configured_job
-from bench.preflight import CONF_DIR, preflight_plan
+from bench.run import callbacks
+from bench.run.job import exit_with_the_sweep, plain, run_configured_job
+from bench.run.preflight import CONF_DIR, preflight_plan
 
 log = logging.getLogger("bench")
 

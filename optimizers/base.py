@@ -18,7 +18,6 @@ and ``_tell(X, f)`` learns from its values. The base owns everything the harness
 from __future__ import annotations
 
 import abc
-
 import numbers
 from typing import Protocol, runtime_checkable
 

@@ -1,4 +1,6 @@
-"""Optimiser registry: ``@register("name")`` on the plugin class, looked up by the yaml's name.
+"""Registries of plugins by name: ``@register("name")`` on the plugin class, looked up by the name
+its yaml uses. :class:`Registry` is the one implementation; optimisers use the module-level
+functions below, ``bench.problems`` a registry of its own.
 
 Plugins import their libraries lazily (inside ``__init__``) so that discovering all of them
 stays cheap.
@@ -9,41 +11,46 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-_REGISTRY: dict[str, type] = {}
-_NOT_PLUGINS = {"base", "registry"}
+
+class Registry:
+    """Classes registered by name; every module of ``package`` (but ``skip`` and private ones) is
+    imported on first lookup, so a plugin registers itself by being in the package."""
+
+    def __init__(self, kind: str, package: str, skip: frozenset[str] = frozenset()):
+        self.kind, self.package, self.skip = kind, package, skip
+        self._classes: dict[str, type] = {}
+
+    def register(self, name: str):
+        """Class decorator that registers ``cls`` under ``name`` (the ``name`` in its yaml)."""
+
+        def decorate(cls: type) -> type:
+            if name in self._classes and self._classes[name] is not cls:
+                raise ValueError(f"{self.kind} name {name!r} registered twice: {self._classes[name]} and {cls}")
+            self._classes[name] = cls
+            cls.registered_name = name
+            return cls
+
+        return decorate
+
+    def _discover(self) -> None:
+        package = importlib.import_module(self.package)
+        for info in pkgutil.iter_modules(package.__path__):
+            if info.name not in self.skip and not info.name.startswith("_"):
+                importlib.import_module(f"{self.package}.{info.name}")
+
+    def available(self) -> list[str]:
+        """Sorted names of every registered class."""
+        self._discover()
+        return sorted(self._classes)
+
+    def get(self, name: str) -> type:
+        """The class registered as ``name``; KeyError lists the valid names."""
+        self._discover()
+        try:
+            return self._classes[name]
+        except KeyError:
+            raise KeyError(f"unknown {self.kind} {name!r}; valid names: {', '.join(sorted(self._classes))}") from None
 
 
-def register(name: str):
-    """Class decorator that registers an optimiser under ``name`` (the ``name`` in its yaml)."""
-
-    def decorate(cls: type) -> type:
-        if name in _REGISTRY and _REGISTRY[name] is not cls:
-            raise ValueError(f"optimiser name {name!r} registered twice: {_REGISTRY[name]} and {cls}")
-        _REGISTRY[name] = cls
-        cls.registered_name = name
-        return cls
-
-    return decorate
-
-
-def _discover() -> None:
-    import optimizers
-
-    for info in pkgutil.iter_modules(optimizers.__path__):
-        if info.name not in _NOT_PLUGINS and not info.name.startswith("_"):
-            importlib.import_module(f"optimizers.{info.name}")
-
-
-def available() -> list[str]:
-    """Sorted names of every registered optimiser."""
-    _discover()
-    return sorted(_REGISTRY)
-
-
-def get(name: str) -> type:
-    """The optimiser class registered as ``name``; KeyError lists the valid names."""
-    _discover()
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise KeyError(f"unknown optimizer {name!r}; valid names: {', '.join(sorted(_REGISTRY))}") from None
+OPTIMIZERS = Registry("optimizer", "optimizers", skip=frozenset({"base", "registry"}))
+register, available, get = OPTIMIZERS.register, OPTIMIZERS.available, OPTIMIZERS.get

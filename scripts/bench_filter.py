@@ -50,21 +50,23 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from avio.filter import FilterConfig, prepare, run, set_threads  # noqa: E402
+from avio.filter.config import FilterConfig  # noqa: E402
+from avio.filter.prepare import prepare  # noqa: E402
+from avio.filter.batch import run, set_threads  # noqa: E402
 from avio.geometry import so3_exp  # noqa: E402
 from avio.metrics import pose_errors  # noqa: E402
-from avio.sequence import Calibration  # noqa: E402
+from avio.calibration import Calibration  # noqa: E402
 
 
 def _sequences(names, seed, data_dir):
     for name in names:
         if name.startswith("sim"):
-            from avio.simulator import SimConfig, simulate
+            from avio.sim.simulator import SimConfig, simulate
 
             cfg = SimConfig.paper_540m() if name == "sim540" else SimConfig.paper_928m()
             yield name, simulate(cfg, seed)
         else:
-            from avio.kitti00 import WINDOWS, load_kitti00
+            from avio.datasets.kitti00 import WINDOWS, load_kitti00
 
             first, last = WINDOWS["paper_540m" if name == "kitti540" else "paper_928m"]
             yield name, load_kitti00(Path(data_dir) / "kitti00", first, last, seed=seed)
@@ -110,7 +112,7 @@ def _candidates(cal: Calibration, n: int, seed: int) -> Calibration:
 
 
 def _kitti(args, first=15, last=796):
-    from avio.kitti00 import load_kitti00
+    from avio.datasets.kitti00 import load_kitti00
 
     return load_kitti00(Path(args.data) / "kitti00", first, last, seed=0)
 
@@ -290,7 +292,7 @@ def _scaling(args, config: FilterConfig, lasts=(114, 214, 414, 796), features=(8
 
 
 def profile(args, config: FilterConfig) -> None:
-    from avio.kitti00 import load_kitti00
+    from avio.datasets.kitti00 import load_kitti00
 
     seq = load_kitti00(Path(args.data) / "kitti00", 15, 796, seed=0)
     prep = prepare(seq, config)

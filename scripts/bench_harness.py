@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from bench.problems.analytic import AnalyticProblem
-from bench.run import Budget, run_job
+from bench.run.loop import Budget, run_job
 from optimizers.random_search import RandomSearch
 
 

@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("evo is not installed: pip install 'avio-bench[evo]' (or pip install 'evo>=1.28'); skipping the check")
         return 0
-    from bench.export import ExportArgsError, check_job, export
+    from bench.report.export import ExportArgsError, check_job, export
 
     try:
         check_job(args.job_dir, args.calibration, args.drive)

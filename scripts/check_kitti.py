@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
-from avio.frontend import track_images, track_observations
+from avio.frontend.klt import track_images, track_observations
 from avio.geometry import so3_exp, so3_log
-from avio.kitti00 import DEFAULT_DATA_DIR, WINDOWS, kitti00_truth, load_kitti00
-from avio.kitti_raw import load_kitti_raw
+from avio.datasets.kitti00 import DEFAULT_DATA_DIR, WINDOWS, kitti00_truth, load_kitti00
+from avio.datasets.kitti_raw import load_kitti_raw
 
 
 def kitti00_figures(data: Path) -> None:
@@ -78,8 +78,8 @@ def frontend_figures(data: Path) -> None:
     print(f"KLT on 10 real frames ({time.perf_counter() - start:.2f} s): surviving tracks per pair "
           f"{stats.n_inliers.tolist()}, median FB error {np.round(stats.fb_median_px, 3).tolist()} px, "
           f"features per triplet {tracks.n_features.tolist()}")
-    from avio.render import load_projections
-    from avio.simulator import SimConfig, simulate
+    from avio.sim.render import load_projections
+    from avio.sim.simulator import SimConfig, simulate
 
     with tempfile.TemporaryDirectory() as tmp:
         seq = simulate(SimConfig(duration_s=1.5, output="images"), seed=1, image_dir=tmp)

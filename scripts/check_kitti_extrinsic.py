@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402
+from avio.datasets.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402
 from avio.reference import CX_PX, CY_PX, FX_PX, FY_PX, kitti_2011_10_03_calibration  # noqa: E402
 
 MIN_STEP_M = 0.3  # frame pairs closer than this carry too little translation to read a direction from
@@ -91,7 +91,7 @@ def bootstrap_median_se(x: np.ndarray, n: int = 2000, seed: int = 0) -> float:
 
 def committed_likelihood_corrections(folder: Path) -> list[np.ndarray]:
     """Camera-frame rotation vectors (deg) ``log(R_opt R_rect^T)`` of the committed runs in folder."""
-    from bench.job import build_problem
+    from bench.problems.base import build_problem
 
     rect = kitti_2011_10_03_calibration(rectified=True).R_cam_imu[0]
     out = []

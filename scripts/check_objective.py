@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.calibration_error import ray_error_deg  # noqa: E402
+from avio.calibration import ray_error_deg  # noqa: E402
 from avio.objectives import OBJECTIVES  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 
@@ -159,7 +159,7 @@ def identifiability_summary() -> None:
 def real_track_rotations() -> None:
     import json
 
-    from bench.job import build_problem
+    from bench.problems.base import build_problem
 
     print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
     for name in ("kitti00_tracks", "kitti00_tracks_nll", "kitti00_tracks_rotation", "kitti00_tracks_nll_rotation"):

@@ -15,11 +15,11 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "avio"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "avio" / "sim"))
 
 from avio.geometry import geodesic_angle_deg  # noqa: E402
-from avio.render import load_projections, render_frames  # noqa: E402
-from avio.simulator import SimConfig, simulate, simulate_world  # noqa: E402
+from avio.sim.render import load_projections, render_frames  # noqa: E402
+from avio.sim.simulator import SimConfig, simulate, simulate_world  # noqa: E402
 from test_simulator import _integrate_rk4  # noqa: E402  (the test's independent RK4 integrator)
 
 

@@ -34,10 +34,10 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.calibration_error import calibration_errors, ray_error_deg  # noqa: E402
+from avio.calibration import calibration_errors, ray_error_deg  # noqa: E402
 from avio.metrics import position_rmse_objective  # noqa: E402
-from avio.sequence import Calibration  # noqa: E402
-from bench import stats  # noqa: E402
+from avio.calibration import Calibration  # noqa: E402
+from bench.report import stats  # noqa: E402
 from bench.problems.synthetic import Synthetic, SyntheticParams  # noqa: E402
 from bench.problems.vio import _plain  # noqa: E402
 

@@ -44,9 +44,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from avio.calibration_error import calibration_errors, ray_error_deg  # noqa: E402
-from avio.filter import set_threads  # noqa: E402
-from avio.simulator import SimConfig, simulate  # noqa: E402
+from avio.calibration import calibration_errors, ray_error_deg  # noqa: E402
+from avio.filter.batch import set_threads  # noqa: E402
+from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 from objective_bias import DRIVE, FRESH_SEED0  # noqa: E402  (scripts/objective_bias.py)
 

@@ -36,10 +36,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from avio.filter import set_threads  # noqa: E402
+from avio.filter.batch import set_threads  # noqa: E402
 from avio.objectives import scored_frames  # noqa: E402
 from avio.sequence import ImuNoise  # noqa: E402
-from avio.simulator import SimConfig, simulate  # noqa: E402
+from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (scripts/objective_bias.py)
 

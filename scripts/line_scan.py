@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avio.filter import set_threads  # noqa: E402
+from avio.filter.batch import set_threads  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 from bench.problems.vio import _plain  # noqa: E402
 

@@ -49,9 +49,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from avio.filter import set_threads  # noqa: E402
-from avio.sequence import Calibration  # noqa: E402
-from avio.simulator import SimConfig, simulate  # noqa: E402
+from avio.filter.batch import set_threads  # noqa: E402
+from avio.calibration import Calibration  # noqa: E402
+from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
 from identifiability import best_calibrations, load  # noqa: E402  (scripts/identifiability.py)
 

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.artifacts import objective_profile, space_info
-from bench.job import build_problem
-from bench.paper_figures import profile_figure
-from bench.preflight import compose_job
+from bench.report.paper.artifacts import objective_profile, space_info
+from bench.problems.base import build_problem
+from bench.report.paper.figures import profile_figure
+from bench.run.preflight import compose_job
 
 
 def summarise(profile, problem) -> None:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import functools
+import json
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from bench.space import Space
+from optimizers.registry import Registry
 
 
 class ProblemError(ValueError):
@@ -34,41 +37,19 @@ class Problem(Protocol):
     def identity(self) -> dict: ...
 
 
-_REGISTRY: dict[str, type] = {}
+PROBLEMS = Registry("problem", "bench.problems", skip=frozenset({"base", "calibration_space", "vio"}))
+#: ``@register("name")`` on a problem class, built as ``Cls(**params)`` with the yaml's keys other than ``name``.
+register, available, get = PROBLEMS.register, PROBLEMS.available, PROBLEMS.get
 
 
-def register(name: str):
-    """Class decorator that registers a problem factory under ``name`` (its yaml's ``name``).
-
-    The class is built as ``Cls(**params)`` with the yaml's keys other than ``name``.
-    """
-
-    def decorate(cls: type) -> type:
-        _REGISTRY[name] = cls
-        return cls
-
-    return decorate
+@functools.lru_cache(maxsize=8)
+def _problem_cached(name: str, params_json: str):
+    # Jobs of one sweep in one process share the problem (its data and caches are built once).
+    return get(name)(**json.loads(params_json))
 
 
-def _discover() -> None:
-    import importlib
-    import pkgutil
-
-    import bench.problems as pkg
-
-    for info in pkgutil.iter_modules(pkg.__path__):
-        if info.name != "base" and not info.name.startswith("_"):
-            importlib.import_module(f"bench.problems.{info.name}")
-
-
-def available() -> list[str]:
-    _discover()
-    return sorted(_REGISTRY)
-
-
-def get(name: str) -> type:
-    _discover()
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise KeyError(f"unknown problem {name!r}; valid names: {', '.join(sorted(_REGISTRY))}") from None
+def build_problem(cfg: dict):
+    """The registered problem named by ``cfg["problem"]``, built from its params (cached per process)."""
+    name = cfg["problem"]["name"]
+    params = cfg["problem"].get("params") or {}
+    return _problem_cached(name, json.dumps(params, sort_keys=True))

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from avio.sequence import Calibration
+from avio.calibration import Calibration
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir
 
@@ -80,7 +80,7 @@ class EurocParams(VioParams):
         return windows
 
     def validate(self) -> None:
-        from avio.kitti00 import CalibrationPerturbation
+        from avio.calibration import CalibrationPerturbation
 
         if self.data_seed < 0:
             raise ProblemError(f"data_seed = {self.data_seed}: must be >= 0")
@@ -103,7 +103,7 @@ class EurocParams(VioParams):
         return default_data_dir(self.data_dir) / FOLDER
 
     def _kalibr(self) -> tuple[Calibration, tuple[int, int]]:
-        from avio.euroc import CAMCHAIN_FILE, EurocDataError, read_camchain
+        from avio.datasets.euroc import CAMCHAIN_FILE, EurocDataError, read_camchain
 
         try:
             return read_camchain(self._folder() / CAMCHAIN_FILE)
@@ -111,7 +111,7 @@ class EurocParams(VioParams):
             raise ProblemError(str(err)) from None
 
     def nominal_for_checks(self) -> Calibration:
-        from avio.kitti00 import CalibrationPerturbation
+        from avio.calibration import CalibrationPerturbation
 
         return CalibrationPerturbation(**self.nominal_perturbation).apply(self._kalibr()[0])
 
@@ -123,7 +123,7 @@ class EurocParams(VioParams):
         self._load_all()
 
     def _load(self, window: tuple[float, float], what: str):
-        from avio.euroc import EurocDataError, load_euroc
+        from avio.datasets.euroc import EurocDataError, load_euroc
 
         try:
             return load_euroc(self._folder(), *window, max_features=self.max_features, seed=self.data_seed,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from avio.sequence import Calibration
+from avio.calibration import Calibration
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir
 
@@ -28,7 +28,7 @@ HOLDOUT_SEED = 1000
 
 
 def _frames(window, what: str) -> tuple[int, int]:
-    from avio.kitti00 import WINDOWS
+    from avio.datasets.kitti00 import WINDOWS
 
     if isinstance(window, str):
         if window not in WINDOWS:
@@ -42,7 +42,7 @@ def _frames(window, what: str) -> tuple[int, int]:
 
 
 def _read(data_dir: str | None):
-    from avio.kitti00 import KittiDataError, read_kitti00
+    from avio.datasets.kitti00 import KittiDataError, read_kitti00
 
     try:
         return read_kitti00(default_data_dir(data_dir) / "kitti00")  # parses and validates every file (memoised)
@@ -57,7 +57,7 @@ def _rectified_reference() -> Calibration:
 
 
 def _load(data_dir, window, what: str, **kwargs):
-    from avio.kitti00 import KittiDataError, load_kitti00
+    from avio.datasets.kitti00 import KittiDataError, load_kitti00
 
     first, last = _frames(window, what)
     try:
@@ -69,8 +69,7 @@ def _load(data_dir, window, what: str, **kwargs):
 def _check_windows(data_dir, windows: dict) -> None:
     """Each window inside the data, its IMU gap-free and its ground truth consistent (cheap:
     the files are parsed once per process)."""
-    from avio.kitti00 import (KittiDataError, _check_window, check_ground_truth_rate, kitti00_truth,
-                              select_imu)
+    from avio.datasets.kitti00 import KittiDataError, _check_window, check_ground_truth_rate, kitti00_truth, select_imu
 
     raw = _read(data_dir)
     for what, window in windows.items():
@@ -105,7 +104,7 @@ class Kitti00Params(VioParams):
         "time_offset_s": 0.0})
 
     def validate(self) -> None:
-        from avio.kitti00 import CalibrationPerturbation
+        from avio.calibration import CalibrationPerturbation
 
         if self.data_seed < 0:
             raise ProblemError(f"data_seed = {self.data_seed}: must be >= 0")
@@ -133,7 +132,7 @@ class Kitti00Params(VioParams):
         _check_windows(self.data_dir, windows)
 
     def _camera(self, seed) -> dict:
-        from avio.kitti00 import CalibrationPerturbation
+        from avio.calibration import CalibrationPerturbation
 
         return dict(camera="simulated", seed=seed, pixel_noise_px=self.pixel_noise_px,
                     outlier_fraction=self.outlier_fraction, max_features=self.max_features,
@@ -167,7 +166,7 @@ class Kitti00TracksParams(VioParams):
     max_features: int = 30
 
     def validate(self) -> None:
-        from avio.kitti00 import REAL_TRACK_FRAMES
+        from avio.datasets.kitti00 import REAL_TRACK_FRAMES
 
         if self.data_seed < 0:
             raise ProblemError(f"data_seed = {self.data_seed}: must be >= 0")
@@ -183,7 +182,7 @@ class Kitti00TracksParams(VioParams):
         return _rectified_reference()
 
     def check_data(self) -> None:
-        from avio.kitti00 import TRACKS_FILE
+        from avio.datasets.kitti00 import TRACKS_FILE
 
         _check_windows(self.data_dir, {"window": self.window})
         tracks = default_data_dir(self.data_dir) / "kitti00" / TRACKS_FILE

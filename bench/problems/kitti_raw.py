@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from avio.sequence import Calibration
+from avio.calibration import Calibration
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
 
@@ -24,7 +24,7 @@ class KittiRawParams(VioParams):
     frontend: dict | None = field(default_factory=lambda: {"max_features": 30})
 
     def validate(self) -> None:
-        from avio.frontend import FrontendConfig
+        from avio.frontend.klt import FrontendConfig
 
         if not self.path:
             raise ProblemError("kitti_raw needs problem.params.path=.../<date>_drive_<nnnn>_sync")
@@ -38,7 +38,7 @@ class KittiRawParams(VioParams):
         return Path(self.calib_dir) if self.calib_dir else Path(self.path).parent
 
     def _reference(self) -> tuple[Calibration, tuple[int, int]]:
-        from avio.kitti_raw import KittiRawError, reference_calibration
+        from avio.datasets.kitti_raw import KittiRawError, reference_calibration
 
         try:
             return reference_calibration(self._calib_dir())
@@ -52,8 +52,8 @@ class KittiRawParams(VioParams):
         return self._reference()[1]
 
     def check_data(self) -> None:
-        from avio.kitti_raw import KittiRawError
-        from avio.oxts import OxtsError, read_oxts_packets, read_timestamps
+        from avio.datasets.kitti_raw import KittiRawError
+        from avio.datasets.oxts import OxtsError, read_oxts_packets, read_timestamps
 
         drive = Path(self.path)
         if not (drive / "oxts" / "data").is_dir():
@@ -71,9 +71,9 @@ class KittiRawParams(VioParams):
                                "packets (the front end needs one grayscale image per packet)")
 
     def build(self) -> Drives:
-        from avio.cache import sequence_with_tracks
-        from avio.frontend import FrontendConfig
-        from avio.kitti_raw import load_kitti_raw
+        from avio.datasets.kitti_raw import load_kitti_raw
+        from avio.frontend.cache import sequence_with_tracks
+        from avio.frontend.klt import FrontendConfig
 
         sequence = load_kitti_raw(self.path, self.calib_dir)
         sequence = sequence_with_tracks(sequence, FrontendConfig(**_tuples(self.frontend)), self.cache_dir)

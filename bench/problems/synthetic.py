@@ -25,7 +25,7 @@ NOISE_WORD = 2000  # third entropy word of a noise realisation's seed (4 words: 
 
 
 def _sim_config(drive: str, sim: dict | None):
-    from avio.simulator import SimConfig, SimulatorError
+    from avio.sim.simulator import SimConfig, SimulatorError
 
     if drive not in PRESETS:
         raise ProblemError(f"synthetic: unknown drive {drive!r}; valid: {', '.join(PRESETS)}")
@@ -72,7 +72,7 @@ class SyntheticParams(VioParams):
         return tuple(_sim_config(self.drives[0], self.sim).image_size_px)
 
     def build(self) -> Drives:
-        from avio.simulator import simulate
+        from avio.sim.simulator import simulate
 
         first = simulate(_sim_config(self.drives[0], self.sim), self.data_seed)
         camera = first.truth_calibration

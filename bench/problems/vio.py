@@ -35,13 +35,15 @@ from typing import ClassVar
 
 import numpy as np
 
-from avio.calibration_error import calibration_errors
-from avio.filter import FilterConfig, FilterError, FilterResult, prepare, run
+from avio.calibration import Calibration, calibration_errors
+from avio.filter.batch import run
+from avio.filter.config import FilterConfig, FilterError, FilterResult
+from avio.filter.prepare import prepare
 from avio.metrics import drift_metrics, pose_errors
 from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse, scored_frames
-from avio.sequence import Calibration, Sequence
-from bench.calibration_space import make_calibration_space
+from avio.sequence import Sequence
 from bench.problems.base import ProblemError
+from bench.problems.calibration_space import make_calibration_space
 from bench.space import SpaceError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]

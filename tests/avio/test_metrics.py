@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from avio.filter import FilterResult
+from avio.filter.config import FilterResult
 from avio.geometry import so3_exp
 from avio.metrics import MetricsError, drift_metrics, pose_errors, position_rmse_objective, segment_lengths_m
 from avio.sequence import GroundTruth

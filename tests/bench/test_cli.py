@@ -152,7 +152,7 @@ def test_hydra_shell_completion_still_works(tmp_path):
 
 
 def test_a_read_only_sweep_folder_is_one_message(tmp_path, monkeypatch):
-    from bench import preflight
+    from bench.run import preflight
 
     monkeypatch.setattr(preflight, "_writable", lambda folder: False)  # root ignores chmod, so the probe is replaced
     with pytest.raises(preflight.ConfigError, match=r"hydra.sweep.dir=.*: cannot write in .* \(read-only"):
@@ -162,7 +162,7 @@ def test_a_read_only_sweep_folder_is_one_message(tmp_path, monkeypatch):
 def test_the_probe_sees_a_folder_that_refuses_writes(tmp_path):
     import os
 
-    from bench.preflight import _writable
+    from bench.run.preflight import _writable
 
     assert _writable(tmp_path)
     if os.geteuid() != 0:

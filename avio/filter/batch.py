@@ -1,0 +1,298 @@
+"""The batched sliding-window trifocal VIO: n error-state Kalman filters in lock-step (PAPER.md §2).
+
+One call of :func:`run` runs one filter per candidate calibration over the same IMU and feature
+tracks. Every array carries the calibration axis first. The calibration-independent work (IMU
+preintegration, feature selection, process noise) is numpy, once per sequence
+(:func:`prepare`); the filters themselves run in one compiled numba kernel
+(avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
+the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
+(pure numpy reached ~20 evaluations/s at batch 64, see scripts/bench_filter.py for the kernel's).
+The batch is split over threads (:func:`set_threads`: contiguous ranges of calibrations, the
+kernel releases the GIL) and each filter is computed by one thread with the same operations as alone, so a
+batch gives the same bits as single runs whatever its size and the thread count; no fastmath,
+so results are deterministic. The first call of a process with a cold numba cache compiles the
+kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
+
+State (nominal): ``p_world_imu`` (m), ``R_world_imu``, ``v_world_imu`` (m/s), accelerometer and
+gyro biases ``b_a`` (m/s^2), ``b_g`` (rad/s), and two clones of the camera-exposure IMU pose of
+frames k-2 and k-1. Error state, 27: ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]``
+with local rotation errors (``R_true = R exp(dtheta)``).
+
+- Initial state: the ground-truth pose and velocity at frame 0, biases from the sequence
+  (``Sequence.initial_*_bias``, zero when unknown); the initial covariance is diagonal with the
+  ``init_sigma_*`` of :class:`FilterConfig`. The filter
+  estimates from frame 0 on; frames before the first complete triplet are IMU propagation only.
+- Prediction: the IMU increments of every frame interval are integrated with RK4 (IMU linearly
+  interpolated at sub-steps of ``rk4_max_step_s``) once per sequence, bias-free, together with
+  their bias Jacobians; each filter applies its own biases to first order (Forster et al. 2017
+  preintegration). Against a per-filter RK4 with biases this differs by ~|b_g T|^2, below 1e-6 m
+  per interval (tests/avio/test_imu_propagation.py) and makes the prediction ~50x cheaper.
+  Covariance: closed-form transition of the interval and the discrete IMU noise
+  (avio/imu_propagation.py), once per frame.
+- Time offset ``td`` (per calibration): frame k was exposed at IMU time ``t_k + td``; its pose is
+  taken to first order, ``(p + v td, R exp((w_m - b_g) td))``, both for the clones and for the
+  current pose in the measurement (with its Jacobian w.r.t. ``dv`` and ``db_g``).
+- Update per frame triplet: 4 pixel residuals per feature (avio/measurement.py) with analytic
+  Jacobians; features chosen once per sequence by 4x8 bucketing of frame k's image
+  (calibration-independent). Each feature's measurement covariance is derived from the pixel
+  noise: ``R_f = pixel_sigma_px^2 G G^T`` with G the residuals' derivative with respect to the six
+  measured pixel coordinates (the two Sampson distances share m2 and are correlated; the
+  transfer amplifies the noise of m1 and m2 by the geometry), so the filter weights each residual
+  by its real uncertainty. That covariance has rank 3 (a point in three images gives three
+  constraints): the update uses the 1-2 Sampson distance and the transfer, whose 3x3
+  covariance is well conditioned, and not the 2-3 Sampson distance, which to first order is
+  their combination (avio._kernels.USED_RESIDUALS). Transfers that amplify the noise more than
+  ``max_transfer_gain`` times are degenerate and not used. Outliers rejected per filter (avio/outliers.py); then the
+  Kalman update in information form, reduced to the 12 relative-pose errors the measurement
+  depends on (avio._kernels.update): a 12x12 solve, never the (4F)x(4F) innovation covariance.
+  Each update also yields its innovation statistics (NIS, log det S, the NLL of
+  avio/objectives.py), at no extra cost in products.
+- Standing still (calibration-free, once per sequence): when both the IMU is still — the
+  variances of every gyro and accelerometer axis over the last ``stationary_imu_window_s``
+  below ``stationary_imu_variance_ratio`` times the white-noise variance the filter assumes —
+  and the median image motion of the triplet's features over two frames is below
+  ``stationary_flow_px`` and incoherent (the two frame steps of a feature do not point the
+  same way: pixel noise, not motion), a zero-velocity pseudo-measurement (``zero_velocity_sigma_mps``)
+  replaces the update. The image test alone fired at 0.3-1.2 m/s while braking and the
+  pseudo-measurement then moved the position by metres; braking shows in the accelerometer
+  (variance ratio 2-8 on the default drive) long after the image motion is below the noise.
+  (Not in the paper; its drives do not stop, the simulated city drive does.)
+- Slide: the oldest clone is dropped and the (time-shifted) current pose is cloned.
+- Divergence: a filter whose state or covariance is non-finite, whose largest covariance
+  diagonal exceeds ``divergence_max_variance`` (default 1e6, i.e. a 1 km standard deviation) or
+  whose speed exceeds ``divergence_max_speed_mps`` (100 m/s) is flagged at that frame and frozen:
+  its estimates (and biases) stay at the last good frame, its ``sigma`` reports the initial
+  standard deviations from then on and its update counts are 0; the others carry on. A
+  calibration with non-finite values is flagged at frame 0 and not run. :func:`avio.metrics.position_rmse_objective` turns a divergence into a
+  finite penalty.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import replace
+
+import numba
+import numpy as np
+
+from avio.calibration import Calibration
+from avio.filter import kernels as _kernels
+from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
+from avio.filter.config import FilterConfig, FilterError, FilterResult
+from avio.filter.prepare import _Prepared, prepare
+from avio.sequence import Sequence
+
+_THREADS: int | None = None  # set_threads(); None: the default rule
+
+
+def default_threads() -> int:
+    """Threads of the filter when :func:`set_threads` was not called: numba's NUMBA_NUM_THREADS,
+    i.e. the machine's cores unless the environment sets it. joblib's loky workers (the Hydra
+    joblib launcher) get ``NUMBA_NUM_THREADS = cores // n_jobs`` from joblib, so two workers on
+    two cores run one thread each and do not oversubscribe; at most ``os.cpu_count()``."""
+    return max(1, min(int(numba.config.NUMBA_NUM_THREADS), os.cpu_count() or 1))
+
+
+def set_threads(n: int | None = None) -> int:
+    """Threads :func:`run` splits a batch over (contiguous ranges of calibrations, each filter on
+    one thread, so results do not depend on it); None restores :func:`default_threads`. Rule
+    for launchers running several filter processes on one machine:
+    ``threads = max(1, cores // processes)``. At most ``os.cpu_count()``; returns the count in
+    effect."""
+    global _THREADS
+    if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+        raise FilterError(f"set_threads: n must be an integer >= 1 or None, got {n!r}")
+    _THREADS = None if n is None else min(int(n), os.cpu_count() or 1)
+    return threads()
+
+
+def threads() -> int:
+    """The filter kernel's thread count now (:func:`set_threads`)."""
+    return _THREADS if _THREADS is not None else default_threads()
+
+
+#: Measured first-run compile time of the kernel on the 2-core development machine, seconds
+#: (scripts/bench_filter.py speed prints it), quoted in the message before a cold compile.
+COMPILE_ESTIMATE_S = 40
+_HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
+_kernel_loaded = False
+
+
+def _kernel_cached() -> bool | None:
+    """Whether numba's cache holds the filter kernel for the current source (None: unknown)."""
+    try:
+        return bool(_kernels.run_filters._cache._cache_file._load_index())
+    except AttributeError:  # numba's private cache API changed: cannot tell
+        return None
+
+
+@contextmanager
+def _announce_compile():
+    """Say so on stderr when the first kernel call of the process will compile it (a cold
+    numba cache), print a heartbeat every 5 s while it does and how long it took."""
+    global _kernel_loaded
+    cached = False if _kernel_loaded else _kernel_cached()
+    if _kernel_loaded or cached:
+        _kernel_loaded = True
+        yield
+        return
+    if cached is None:  # cannot tell: say something only if the call turns out to be long
+        t0 = time.perf_counter()
+        yield
+        _kernel_loaded = True
+        if time.perf_counter() - t0 > 5.0:
+            print(f"compiled or loaded the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        return
+    where = numba.config.CACHE_DIR or os.path.join(os.path.dirname(_kernels.__file__), "__pycache__")
+    print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in {where})",
+          file=sys.stderr, flush=True)
+    done = threading.Event()
+    t0 = time.perf_counter()
+
+    def heartbeat():
+        while not done.wait(_HEARTBEAT_S):
+            print(f"  still compiling the VIO filter ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    beat = threading.Thread(target=heartbeat, name="avio-compile-heartbeat", daemon=True)
+    beat.start()
+    try:
+        yield
+    finally:
+        done.set()
+        beat.join()
+    _kernel_loaded = True
+    print(f"compiled the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+
+
+class _State:
+    """Initial nominal states and covariances of n filters: truth pose and velocity of frame 0,
+    biases zero, clones at the origin (they are set by the first slides), ``P0`` diagonal."""
+
+    def __init__(self, sequence: Sequence, n: int, config: FilterConfig):
+        tr = sequence.truth
+        self.R = np.repeat(tr.R_world_imu[:1], n, axis=0).astype(float)
+        self.p = np.repeat(tr.p_world_imu_m[:1], n, axis=0).astype(float)
+        self.v = np.repeat(tr.v_world_imu_mps[:1], n, axis=0).astype(float)
+        self.ba = np.repeat(_bias(sequence.initial_accel_bias_mps2)[None], n, axis=0)
+        self.bg = np.repeat(_bias(sequence.initial_gyro_bias_radps)[None], n, axis=0)
+        self.cp = np.zeros((2, n, 3))  # clones (k-2, k-1): exposure-time IMU positions
+        self.cR = np.repeat(np.eye(3)[None, None], 2, 0).repeat(n, 1)
+        c = config
+        d = np.r_[[c.init_sigma_p_m] * 3, [c.init_sigma_theta_rad] * 3, [c.init_sigma_v_mps] * 3,
+                  [c.init_sigma_ba_mps2] * 3, [c.init_sigma_bg_radps] * 3, [c.init_sigma_p_m] * 3,
+                  [c.init_sigma_theta_rad] * 3, [c.init_sigma_p_m] * 3, [c.init_sigma_theta_rad] * 3]
+        self.P0 = np.diag(d**2)
+        self.P = np.repeat(self.P0[None], n, axis=0)
+
+def _bias(value) -> np.ndarray:
+    return np.zeros(3) if value is None else np.asarray(value, float).reshape(3)
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _cal_arrays(cal: Calibration) -> tuple:
+    return tuple(_f64(getattr(cal, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m"))
+
+
+_MODES = {"none": MODE_NONE, "ransac": MODE_RANSAC, "mahalanobis": MODE_GATE,
+          "both": MODE_BOTH}
+
+
+def _check_input(sequence: Sequence, cal: Calibration) -> None:
+    n = len(cal)
+    shapes = {"fx_px": (n,), "fy_px": (n,), "cx_px": (n,), "cy_px": (n,), "R_cam_imu": (n, 3, 3),
+              "p_imu_cam_m": (n, 3), "time_offset_s": (n,)}
+    for k, s in shapes.items():
+        if getattr(cal, k).shape != s:
+            raise FilterError(f"Calibration.{k} has shape {getattr(cal, k).shape}, expected {s}")
+    if n == 0:
+        raise FilterError("empty batch of calibrations")
+    if sequence.n_frames < 3:
+        raise FilterError(f"sequence {sequence.name!r} has {sequence.n_frames} frames, need >= 3")
+
+
+def _imposed(sequence: Sequence, config: FilterConfig, prep: _Prepared) -> tuple[_Prepared, FilterConfig]:
+    """outlier_decisions="reference": the inputs with only the features the reference's own
+    updates used as candidates, and a config that rejects nothing itself (FilterConfig)."""
+    if "valid" not in prep.imposed:
+        if sequence.reference_calibration is None:
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: sequence {sequence.name!r} has no "
+                              "reference calibration")
+        own = replace(config, outlier_decisions="own")
+        ref = run(sequence, sequence.reference_calibration, own, prepared=prep, record_used=True)
+        if ref.diverged[0]:  # its decisions would end there, and every filter's updates with them
+            raise FilterError(f"outlier_decisions={config.outlier_decisions!r}: the filter at the reference "
+                              f"calibration diverges on {sequence.name!r} at frame {int(ref.diverged_at_frame[0])}")
+        prep.imposed["valid"] = prep.valid & ref.used[0]
+    return replace(prep, valid=prep.imposed["valid"]), replace(config, outlier_rejection="none")
+
+
+def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = FilterConfig(),
+        prepared: _Prepared | None = None, record_used: bool = False) -> FilterResult:
+    """Run one filter per calibration over ``sequence``, all in one compiled kernel call.
+
+    sequence: IMU, frame times, ground truth (for the initial state only) and tracks.
+    calibrations: batch of n candidate calibrations.
+    prepared: output of :func:`prepare` for this (sequence, config), to reuse across calls.
+    record_used: also return which features each update used (FilterResult.used).
+    Returns a :class:`FilterResult` with (n, N, ...) estimates at the frames.
+    """
+    _check_input(sequence, calibrations)
+    prep = prepared if prepared is not None else prepare(sequence, config)
+    result_config = config
+    # reference_all: the imposed features are used whatever their transfer gain and baseline
+    # here (the reference judged both; R_f grows with the gain, so they fade, not jump).
+    everything = config.outlier_decisions == "reference_all"
+    gain_limit = np.inf if everything else float(config.max_transfer_gain)
+    min_parallax_m = 0.0 if everything else config.min_parallax_m
+    if config.outlier_decisions != "own":  # imposed from the reference
+        prep, config = _imposed(sequence, config, prep)
+    cal = calibrations
+    n, N = len(cal), sequence.n_frames
+    c = config
+    pre = prep.pre
+    st = _State(sequence, 1, c)
+    out_p, out_R, out_v = np.empty((n, N, 3)), np.empty((n, N, 3, 3)), np.empty((n, N, 3))
+    out_sig, out_ba, out_bg = np.empty((n, N, 15)), np.empty((n, N, 3)), np.empty((n, N, 3))
+    n_upd, n_out, div_at = np.zeros((n, N), np.int64), np.zeros((n, N), np.int64), np.empty(n, np.int64)
+    # A calibration with non-finite values is diverged before it starts (frame 0).
+    frozen = ~np.all(np.isfinite(np.concatenate(
+        [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
+         cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
+    out_nis, out_ldS, out_nll = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
+    out_dof, out_slots = np.empty((n, N), np.int64), np.empty((n, N), np.int64)
+    out_used = np.zeros((n if record_used else 0, *prep.valid.shape), np.uint8)
+    args = (st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
+            pre.dp, pre.S, pre.SS,
+            pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
+            prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, float(c.pixel_sigma_px),
+            gain_limit, min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
+            c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
+            out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
+            out_slots, out_used)
+    # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
+    # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per
+    # filter, taken as threads come free, since filters that diverge early stop early: on a
+    # default job's batches four ranges per thread idled a thread for ~10 % of the time
+    # (`python scripts/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
+    n_threads = min(threads(), n)
+    # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
+    # kernel tests for and drops; the floating-point warnings carry no information.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
+        if n_threads == 1:
+            _kernels.run_filters(0, n, *args)
+        else:
+            with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
+                jobs = [pool.submit(_kernels.run_filters, i, i + 1, *args) for i in range(n)]
+                for job in jobs:
+                    job.result()
+    return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
+                        out_nis, out_ldS, out_dof, out_nll, out_slots, used=out_used.astype(bool) if record_used else None,
+                        meta={"config": result_config})

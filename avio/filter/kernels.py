@@ -1,0 +1,287 @@
+"""Compiled kernels of the batched VIO filter (avio/filter.py): the whole run of n filters
+(:func:`run_filters`) and its per-filter steps: prediction of the covariance, the trifocal
+update (measurement chain, outlier rejection, Kalman update, injection), the zero-velocity
+update, the window slide and the divergence test.
+
+Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column
+Jacobians, 16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work
+that numpy spread over ~200 calls per frame, whose overhead cost more than the arithmetic.
+numba with ``cache=True`` (compiled once, then loaded from avio/__pycache__; NB numba's cache
+does not notice edits to functions of other modules called from a cached one: after editing
+avio/measurement.py, avio/outliers.py, avio/_linalg.py or avio/imu_propagation.py, delete
+avio/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
+numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
+filter runs alone on one thread (:func:`run_filters` runs a contiguous range of the batch, one
+filter after the other, with one set of workspaces allocated once, so nothing is allocated per
+frame; it releases the GIL and avio/filter.py runs one range per thread), so a batch gives the
+same numbers as single runs whatever the thread count.
+
+Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (filter.py).
+One filter: R (3, 3) ``R_world_imu``; p, v, ba, bg (3,); clones cp0, cp1 (3,), cR0, cR1 (3, 3)
+(frames k-2, k-1); covariance P (27, 27); calibration fx, fy, cx, cy, td scalars, Rci
+``R_cam_imu`` (3, 3), pic ``p_imu_cam_m`` (3,). ``*_all`` wrappers take the same with a
+leading n axis (clones (2, n, ...)).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from avio.filter._linalg import copy1, copy2, solve
+from avio.filter.measurement import measure_workspace, shifted_pose
+from avio.filter.propagation import propagate_one, propagate_workspace
+from avio.filter.update import inject, noise_workspace, outlier_workspace, update, update_workspace
+
+
+@numba.njit(cache=True, error_model="numpy")
+def propagate_covariance(Pi, Phi, Qd, T, U):
+    """Covariance prediction of one filter, in place: ``P <- F P F^T + Q`` with
+    ``F = blockdiag(Phi, I_12)`` (clones have no dynamics), Phi (15, 15) the core error
+    transition of the interval, Qd (15, 15) its discrete process noise (T (15, 27), U (15, 15):
+    scratch)."""
+    # Written out (matmul on slices would use strided views); zeros of Phi are skipped.
+    # T = Phi P[0:15, :] (rows of the new cross-covariances and of W = Phi P15), U = W^T.
+    for a in range(15):
+        for b in range(27):
+            T[a, b] = 0.0
+        for c in range(15):
+            f = Phi[a, c]
+            if f != 0.0:
+                for b in range(27):
+                    T[a, b] += f * Pi[c, b]
+    for a in range(15):
+        for b in range(15):
+            U[a, b] = T[b, a]
+    # P15 <- Phi W^T + Q = Phi P15 Phi^T + Q; cross blocks <- T[:, 15:27].
+    for a in range(15):
+        for b in range(15):
+            Pi[a, b] = Qd[a, b]
+        for c in range(15):
+            f = Phi[a, c]
+            if f != 0.0:
+                for b in range(15):
+                    Pi[a, b] += f * U[c, b]
+        for b in range(15, 27):
+            Pi[a, b] = T[a, b]
+            Pi[b, a] = T[a, b]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
+    """Slide the window of one filter, in place: drop clone k-2 (cp (2, 3), cR (2, 3, 3)), move
+    k-1 down, clone the current exposure-time pose (:func:`shifted_pose`); its covariance rows
+    are ``J P[0:15]`` (R3, p3, J, E, NR (6, 27): scratch)."""
+    shifted_pose(R, p, v, omega, td, R3, p3, J, E)
+    copy1(cp[0], cp[1])
+    copy2(cR[0], cR[1])
+    copy1(cp[1], p3)
+    copy2(cR[1], R3)
+    for a in range(6):
+        for b in range(27):
+            NR[a, b] = 0.0
+        for c in range(15):
+            f = J[a, c]
+            if f != 0.0:
+                for b in range(27):
+                    NR[a, b] += f * Pi[c, b]  # NR = J P[0:15, :]
+    for a in range(6):
+        for b in range(15, 21):
+            NR[a, b] = NR[a, b + 6]
+    # Clone k-1 (rows/columns 21:27) moves to 15:21; in place is safe because each entry is
+    # read from the same or a later, not yet written position.
+    for a in range(21):
+        ma = a if a < 15 else a + 6
+        for b in range(21):
+            Pi[a, b] = Pi[ma, b if b < 15 else b + 6]
+    for a in range(6):
+        for b in range(21):
+            Pi[21 + a, b] = NR[a, b]
+            Pi[b, 21 + a] = NR[a, b]
+        for b in range(6):
+            acc = 0.0
+            for c in range(15):
+                acc += NR[a, c] * J[b, c]
+            Pi[21 + a, 21 + b] = acc
+
+
+@numba.njit(cache=True, error_model="numpy")
+def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
+    """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
+    Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
+    (symmetrised), then the injection. A full update: the position error accumulated while
+    braking is corrected through the position-velocity correlation (a "consider" update of
+    the velocity and biases only was tried: 4.9 m instead of 1.4 m at the truth, seed 0).
+    Allocates its scratch; the filter calls :func:`zero_velocity_update_into`."""
+    S, Z, dx, K = zero_velocity_workspace()
+    zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def zero_velocity_workspace():
+    """Scratch arrays of :func:`zero_velocity_update_into`: S (3, 3), Z (3, 28), dx (27,), K (27, 27)."""
+    return np.empty((3, 3)), np.empty((3, 28)), np.empty(27), np.empty((27, 27))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K):
+    """:func:`zero_velocity_update` with its scratch passed in (:func:`zero_velocity_workspace`)."""
+    for a in range(3):
+        for b in range(3):
+            S[a, b] = Pi[6 + a, 6 + b] + (sigma_mps * sigma_mps if a == b else 0.0)
+        for b in range(27):
+            Z[a, b] = Pi[6 + a, b]
+        Z[a, 27] = -v[a]
+    solve(S, Z)
+    for a in range(27):
+        dx[a] = Pi[a, 6] * Z[0, 27] + Pi[a, 7] * Z[1, 27] + Pi[a, 8] * Z[2, 27]
+    for a in range(27):
+        for b in range(27):
+            K[a, b] = Pi[a, 6] * Z[0, b] + Pi[a, 7] * Z[1, b] + Pi[a, 8] * Z[2, b]
+    for a in range(27):
+        for b in range(a + 1):
+            s = 0.5 * ((Pi[a, b] - K[a, b]) + (Pi[b, a] - K[b, a]))
+            Pi[a, b], Pi[b, a] = s, s
+    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _bad(R, p, v, Pi, max_variance, max_speed):
+    """Divergence test of one filter (avio/filter.py): non-finite state or covariance, a
+    covariance diagonal above max_variance, or a speed above max_speed."""
+    nonfinite = False  # x - x is NaN exactly for inf and NaN; no early exit, so it vectorises
+    for a in range(27):
+        for b in range(27):
+            nonfinite |= (Pi[a, b] - Pi[a, b]) != 0.0
+    for a in range(3):
+        nonfinite |= (p[a] - p[a]) != 0.0 or (v[a] - v[a]) != 0.0
+        for b in range(3):
+            nonfinite |= (R[a, b] - R[a, b]) != 0.0
+    if nonfinite:
+        return True
+    for a in range(27):
+        if Pi[a, a] > max_variance:
+            return True
+    return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+                valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
+                mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
+                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
+                out_nll, out_slots, out_used):
+    """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
+    other (so a batch gives the same bits as single runs), its frames in order: prediction
+    (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
+    :func:`update` or, standing still, :func:`zero_velocity_update`, :func:`slide`, the
+    divergence test. A diverged filter (or one with ``frozen`` set: a non-finite calibration)
+    keeps the estimates of its last good frame, reports the initial sigmas and no updates
+    from then on. Writes the out_* arrays (n, N, ...), n_upd, n_out (n, N), div_at (n,) and the
+    innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
+    contribution and residual slots (:func:`update`; zero where no trifocal update ran);
+    out_used (n, n_triplets, F) uint8, or (0, ...) not to record them: which features each
+    triplet's update used (zero where none ran).
+    The biases start at ba0, bg0 (3,), the prior means.
+    This call runs filters lo..hi-1 (of the n of the out_* arrays), one after the other, with one
+    set of workspaces allocated here (nothing is allocated in the frame loop); it releases the
+    GIL, so avio/filter.py runs contiguous ranges of a batch on several threads at once (each
+    filter on one thread, with the same operations as alone: the bits do not depend on the
+    batch or thread count).
+    """
+    N, F = T_s.shape[0], uv.shape[1]
+    ws, mws, pws, nws = update_workspace(F), measure_workspace(), propagate_workspace(), noise_workspace(F)
+    ows = outlier_workspace(F)
+    zS, zZ, zdx, zK = zero_velocity_workspace()
+    omega = np.empty(3)
+    R, p, v, ba, bg = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    cp, cR, P = np.empty((2, 3)), np.empty((2, 3, 3)), np.empty((27, 27))
+    R_new, v_new, p_new, Phi = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((15, 15))
+    E, T3, Tq, U = np.empty((3, 3)), np.empty((3, 3)), np.empty((15, 27)), np.empty((15, 15))
+    R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
+    ba_s, bg_s = np.empty(3), np.empty(3)
+    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))
+    record = out_used.shape[0] > 0
+    no_record = np.zeros(F, np.uint8)
+    for i in range(lo, hi):
+        copy2(R, R0)
+        copy1(p, p0)
+        copy1(v, v0)
+        copy2(P, P0)
+        copy1(ba, ba0)
+        copy1(bg, bg0)
+        cp[:] = 0.0
+        cR[:] = 0.0
+        for a in range(3):
+            cR[0, a, a] = 1.0
+            cR[1, a, a] = 1.0
+        n_upd[i, :] = 0
+        n_out[i, :] = 0
+        out_nis[i, :] = 0.0
+        out_ldS[i, :] = 0.0
+        out_dof[i, :] = 0
+        out_nll[i, :] = 0.0
+        out_slots[i, :] = 0
+        if record:
+            out_used[i] = 0
+        div_at[i] = 0 if frozen[i] else -1
+        k_stop = 0 if frozen[i] else N
+        for k in range(k_stop):
+            copy1(ba_s, ba)
+            copy1(bg_s, bg)
+            if k > 0:
+                propagate_one(R, v, p, ba, bg, g, dR[k], dv[k], dp[k], S[k], SS[k], Vbg[k], Pbg[k], T_s[k],
+                              R_new, v_new, p_new, Phi, pws)
+                propagate_covariance(P, Phi, Qd[k], Tq, U)
+            else:
+                copy2(R_new, R)
+                copy1(v_new, v)
+                copy1(p_new, p)
+            for a in range(3):
+                omega[a] = gyro_frame[k, a] - bg[a]
+            j = triplet_of_frame[k]
+            if k >= 2 and stationary[k] and zero_velocity_sigma_mps > 0:
+                zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
+                                          zero_velocity_sigma_mps, E, T3, zS, zZ, zdx, zK)
+            elif k >= 2 and j >= 0:
+                decided = out_used[i, j] if record else no_record
+                used, rej, nis, ldS, dof, nll, slots = update(
+                    R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega, td[i], fx[i], fy[i], cx[i],
+                    cy[i], Rci[i], pic[i], uv[j], valid[j], sigma_px, max_transfer_gain, min_parallax_m, mode,
+                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows, record, decided)
+                n_upd[i, k], n_out[i, k] = used, rej
+                out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
+            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)
+            if _bad(R_new, p_new, v_new, P, max_variance, max_speed):
+                div_at[i] = k
+                n_upd[i, k] = 0
+                n_out[i, k] = 0
+                out_nis[i, k] = 0.0
+                out_ldS[i, k] = 0.0
+                out_dof[i, k] = 0
+                out_nll[i, k] = 0.0
+                out_slots[i, k] = 0
+                if record and j >= 0:
+                    out_used[i, j] = 0
+                copy1(ba, ba_s)
+                copy1(bg, bg_s)
+                k_stop = k
+                break
+            copy2(R, R_new)
+            copy1(p, p_new)
+            copy1(v, v_new)
+            copy1(out_p[i, k], p)
+            copy2(out_R[i, k], R)
+            copy1(out_v[i, k], v)
+            copy1(out_ba[i, k], ba)
+            copy1(out_bg[i, k], bg)
+            for a in range(15):
+                out_sig[i, k, a] = np.sqrt(abs(P[a, a]))
+        # From the divergence on: the last good state (biases included), the initial sigmas.
+        for k in range(k_stop, N):
+            copy1(out_p[i, k], p)
+            copy2(out_R[i, k], R)
+            copy1(out_v[i, k], v)
+            copy1(out_ba[i, k], ba)
+            copy1(out_bg[i, k], bg)
+            copy1(out_sig[i, k], sig0)

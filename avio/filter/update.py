@@ -1,0 +1,327 @@
+"""The trifocal update of one filter at one frame (compiled): measurement chain, noise model,
+outlier rejection, Kalman update in information form, and the injection of the correction.
+
+Equations: docs/model.md, "Update". Called by :func:`avio.filter.kernels.run_filters`, once per
+filter and update frame, with workspaces allocated once per filter range."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from avio.filter._linalg import copy2, matmul, so3_exp, solve
+from avio.filter.measurement import measure
+from avio.filter.outliers import (
+    cholesky_lanes,
+    feature_innovations_into,
+    forward_lanes,
+    innovations_workspace,
+    log_det_lanes,
+    mahalanobis_gate,
+    one_point_ransac_into,
+    ransac_workspace,
+)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rotate(Rm, dtheta, E, T):
+    so3_exp(dtheta[0], dtheta[1], dtheta[2], E)
+    matmul(Rm, E, T)
+    copy2(Rm, T)
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
+    """Add the error-state correction dx (27,) to one filter's nominal state (local rotation
+    errors, ``R <- R exp(dtheta)``), in place (E, T (3, 3): scratch)."""
+    for i in range(3):
+        p[i] += dx[i]
+        v[i] += dx[6 + i]
+        ba[i] += dx[9 + i]
+        bg[i] += dx[12 + i]
+        cp0[i] += dx[15 + i]
+        cp1[i] += dx[21 + i]
+    _rotate(R, dx[3:6], E, T)
+    _rotate(cR0, dx[18:21], E, T)
+    _rotate(cR1, dx[24:27], E, T)
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def update_workspace(F):
+    """Scratch arrays of :func:`update` for F features (allocated once per run)."""
+    d = 12
+    return (np.empty((4, F)), np.empty((4, d, F)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
+            np.empty(3), np.empty(3), np.empty((M, d, F)), np.empty((M, F)), np.empty(F, np.bool_),
+            np.empty(F, np.bool_), np.empty(F, np.bool_), np.empty((d, d)), np.empty((d, d)), np.empty((d, d + 1)),
+            np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)))
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def noise_workspace(F):
+    """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
+    pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
+    (avio/outliers.py), the M used residuals, their Jacobians and pixel
+    sensitivities (M, F), (M, 12, F), (M, 6, F); covariances R_f and their Cholesky factors
+    (M, M, F), standard deviations (M, F), log det R_f and log det S_f (F,), the whitened
+    residuals and Jacobians (M, F), (M, 12, F), one feature's whitened Jacobian (M, 12) and a
+    (12,) vector."""
+    return (np.empty((4, 6, F)), np.empty((M, F)), np.empty((M, 12, F)), np.empty((M, 6, F)),
+            np.empty((M, M, F)), np.empty((M, F)), np.zeros((M, M, F)), np.empty(F), np.empty(F), np.empty((M, F)),
+            np.empty((M, 12, F)), np.empty((M, 12)), np.empty(12))
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def outlier_workspace(F):
+    """Scratch arrays of the outlier tests of :func:`update` for F features
+    (avio.outliers.innovations_workspace, then avio.outliers.ransac_workspace)."""
+    Lp, S, L, y = innovations_workspace(M, 12, F)
+    Y, moved, inlier, count = ransac_workspace(F, M, 12)
+    return Lp, S, L, y, Y, moved, inlier, count
+
+
+
+MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3  # outlier rejection of update()
+LOG_2PI = np.log(2.0 * np.pi)
+
+
+
+#: The residuals the update uses, of the 4 of avio.measurement: the 1-2 Sampson distance and the
+#: two transfer coordinates. A point seen in three images gives 3 independent constraints (6
+#: measured coordinates minus its 3 coordinates): to first order the 2-3 Sampson distance is
+#: a combination of the other three, so the 4x4 covariance from the pixel noise is singular
+#: (smallest eigenvalue ~1e-4 sigma^2 against ~0.6 sigma^2 for these three on the default drive)
+#: and whitening all four would turn linearisation error into near-certain information.
+USED_RESIDUALS = (0, 2, 3)
+
+
+
+M = 3
+
+
+
+#: R_f gets (NOISE_FLOOR * sigma)^2 on its diagonal: keeps it positive definite when a
+#: geometry makes two residuals react to the pixels in the same way (it changes no decision).
+NOISE_FLOOR = 0.01
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
+    """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of every feature (G (M, 6, F) the used
+    residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
+    log det R_f, into the workspace arrays (features last: (M, M, F), (M, F), (F,))."""
+    s2 = sigma_px * sigma_px
+    F = Gp.shape[2]
+    for a in range(M):
+        for b in range(a + 1):
+            for f in range(F):
+                acc = 0.0
+                for c in range(6):
+                    acc += Gp[a, c, f] * Gp[b, c, f]
+                Rm[a, b, f] = s2 * acc
+                Rm[b, a, f] = s2 * acc
+        for f in range(F):
+            Rm[a, a, f] += s2 * NOISE_FLOOR * NOISE_FLOOR
+            sd[a, f] = np.sqrt(Rm[a, a, f])
+    cholesky_lanes(Rm, Lm)
+    log_det_lanes(Lm, ldR)
+
+
+
+@numba.njit(cache=True, error_model="numpy")
+def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma_px,
+           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows,
+           record, decided):
+    """One trifocal update of one filter (state and covariance Pi (27, 27) in place).
+
+    Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
+    baseline or with a degenerate transfer: not used), each feature's measurement covariance
+    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.measurement.feature_residuals), outlier
+    rejection (``mode``: MODE_* of this module) on the linearised measurement, then the Kalman
+    update. A transfer is degenerate when it amplifies the pixel noise more than
+    ``max_transfer_gain`` times (the line through m2 nearly through the epipole: tiny changes of
+    m1, m2 move the transferred point by hundreds of pixels, whatever the residual).
+    The measurement depends on the state only through the 12 relative-pose errors ``C dx``, so
+    gates and update work with ``Sigma = C P C^T`` (12x12) and J: ``P+ = P - P C^T (I + A
+    Sigma)^-1 A C P``, ``dx = P C^T (I + A Sigma)^-1 J^T R^-1 r`` with ``A = J^T R^-1 J`` — the
+    information form ``(P^-1 + H^T R^-1 H)^-1`` with ``H = J C``, at the price of a 12x12 solve.
+    The same factors give the innovation likelihood of the update (avio/objectives.py):
+    ``NIS = r^T S^-1 r = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta`` (Woodbury, ``beta =
+    J^T R^-1 r``) and ``log det S = log det R + log det(I + A Sigma)``.
+    Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
+    rejected, the update's NIS, log det S and residual count, its NLL contribution with the
+    capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
+    feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
+    ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws: :func:`noise_workspace`,
+    ows: :func:`outlier_workspace` (nothing is allocated here).
+    After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
+    avio/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
+    """
+    F, d = uv.shape[0], 12
+    r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3 = ws
+    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, Jw, jw_f, beta = nws
+    oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
+    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws, False)
+    # Without baseline the epipolar geometry and the transfer are undefined (standing still).
+    b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
+    b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
+    moving = b12 > min_parallax_m and b23 > min_parallax_m
+    n_valid = 0
+    gain_limit2 = (max_transfer_gain * sigma_px) ** 2
+    log_s2 = np.log(sigma_px * sigma_px)
+    # The used rows, features last (avio/outliers.py): every step below runs over all F
+    # features at once (SIMD); a feature's own operations are those of one feature alone.
+    for a in range(M):
+        u = USED_RESIDUALS[a]
+        for f in range(F):
+            r[a, f] = r4[u, f]
+        for b in range(d):
+            for f in range(F):
+                J[a, b, f] = J4[u, b, f]
+        for b in range(6):
+            for f in range(F):
+                Gp[a, b, f] = G4[u, b, f]
+    # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
+    for f in range(F):
+        n_valid += valid[f]
+        ok[f] = valid[f] and moving
+    for a in range(M):
+        for f in range(F):
+            ok[f] &= np.isfinite(r[a, f])
+        for b in range(d):
+            for f in range(F):
+                ok[f] &= np.isfinite(J[a, b, f])
+        for b in range(6):
+            for f in range(F):
+                ok[f] &= np.isfinite(Gp[a, b, f])
+    _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR)  # all features; only those still ok keep it
+    n_ok = 0
+    for f in range(F):
+        ok[f] &= Rm[1, 1, f] <= gain_limit2 and Rm[2, 2, f] <= gain_limit2  # the transfer's rows
+        n_ok += ok[f]
+    for f in range(F):
+        if not ok[f]:
+            ldR[f] = M * log_s2
+            for a in range(M):
+                r[a, f] = 0.0
+                sd[a, f] = sigma_px
+                for b in range(d):
+                    J[a, b, f] = 0.0
+                for b in range(M):
+                    Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
+    # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
+    # symmetric), Sigma = C P C^T (symmetrised).
+    matmul(C, Pi, CP)
+    for a in range(27):
+        for b in range(d):
+            PCt[a, b] = CP[b, a]
+    matmul(C, PCt, Sig)
+    for a in range(d):
+        for b in range(a):
+            s = 0.5 * (Sig[a, b] + Sig[b, a])
+            Sig[a, b], Sig[b, a] = s, s
+    for f in range(F):
+        inl[f] = ok[f]
+    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, oLp, oS, oL, oy)
+    # The score (avio/objectives.py): every valid feature's own innovation likelihood, its
+    # squared Mahalanobis distance capped at the gate, whatever the update does with it.
+    nll = 0.0
+    for f in range(F):
+        if valid[f]:
+            if ok[f]:
+                d2 = 0.0
+                for a in range(M):
+                    d2 += r[a, f] * z[a, f]
+                nll += 0.5 * (min(d2, chi2_threshold) + ldS[f] + M * LOG_2PI)
+            else:
+                nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
+    if mode == MODE_RANSAC or mode == MODE_BOTH:
+        one_point_ransac_into(r, HP, z, sd, ok, ransac_threshold_sigma, inl, oY, omoved, oinlier, ocount)
+    if mode == MODE_GATE or mode == MODE_BOTH:
+        mahalanobis_gate(r, z, inl, chi2_threshold, gate)
+        for f in range(F):
+            inl[f] = gate[f]
+    # Information form over the inliers: A = Jw^T Jw, beta = Jw^T rw with the whitened
+    # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T): the whitening of all features at
+    # once (forward substitution, one residual row at a time), then the sums over the inliers
+    # in feature order.
+    forward_lanes(Lm, r, rw)
+    for a in range(M):
+        for b in range(d):
+            for f in range(F):
+                acc = J[a, b, f]
+                for k in range(a):
+                    acc -= Lm[a, k, f] * Jw[k, b, f]
+                Jw[a, b, f] = acc / Lm[a, a, f]
+    A[:] = 0.0
+    X[:] = 0.0
+    used = 0
+    rr = 0.0
+    log_det_R = 0.0
+    if record:
+        for f in range(F):
+            decided[f] = inl[f]
+    for f in range(F):
+        if not inl[f]:
+            continue
+        used += 1
+        log_det_R += ldR[f]
+        for a in range(M):
+            rr += rw[a, f] * rw[a, f]
+            for b in range(d):
+                jw_f[a, b] = Jw[a, b, f]
+        for a in range(M):
+            rwa = rw[a, f]
+            for b in range(d):
+                jb = jw_f[a, b]
+                if jb != 0.0:
+                    X[b, d] += jb * rwa
+                    for c in range(b, d):
+                        A[b, c] += jb * jw_f[a, c]
+    for b in range(d):
+        beta[b] = X[b, d]
+        for c in range(b):
+            A[b, c] = A[c, b]
+    # X = (I + A Sigma)^-1 [A | beta]
+    matmul(A, Sig, Mx)
+    for a in range(d):
+        Mx[a, a] += 1.0
+        for b in range(d):
+            X[a, b] = A[a, b]
+    solve(Mx, X)
+    log_det_S = log_det_R
+    for a in range(d):
+        log_det_S += np.log(abs(Mx[a, a]))  # the pivots of the elimination: det(I + A Sigma) > 0
+    nis = rr
+    for a in range(d):
+        acc = 0.0
+        for b in range(d):
+            acc += Sig[a, b] * X[b, d]
+        nis -= beta[a] * acc
+    dof = M * used
+    for a in range(27):
+        acc = 0.0
+        for b in range(d):
+            acc += PCt[a, b] * X[b, d]
+        dx[a] = acc
+    # P -= (PCt X[:, :12]) CP: the lower triangle, mirrored (P stays exactly symmetric).
+    for a in range(27):
+        for b in range(d):
+            K[a, b] = 0.0
+        for c in range(d):
+            f = PCt[a, c]
+            for b in range(d):
+                K[a, b] += f * X[c, b]
+    for a in range(27):
+        for b in range(d):
+            kab = K[a, b]
+            for c in range(a + 1):
+                Pi[a, c] -= kab * CP[b, c]
+        for c in range(a):
+            Pi[c, a] = Pi[a, c]
+    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)
+    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid

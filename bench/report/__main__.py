@@ -1,0 +1,43 @@
+"""``python -m bench.report DIR... [--out OUT]``: the report of one or more sweep folders (bench/report/build.py)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bench.records import RecordError
+from bench.report.build import ReportError, build_report
+from bench.report.curves import CurvesError
+from bench.report.leaderboard import LeaderboardError
+from bench.report.stats import StatsError
+from bench.report.targets import TargetsError
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry: build the report; 0 on success, 2 with one message on bad input."""
+    parser = argparse.ArgumentParser(prog="python -m bench.report",
+                                     description="Leaderboard, statistics and figures from run records.")
+    parser.add_argument("dirs", nargs="+", help="folders holding job folders (record.json + evals.jsonl)")
+    parser.add_argument("--out", default=None, help="output folder (default: FIRST_DIR/report)")
+    parser.add_argument("--pairing", choices=("none", "seed"), default="none",
+                        help="'seed': Wilcoxon signed-rank on seed-matched runs (default: Mann–Whitney U)")
+    parser.add_argument("--alpha", default="0.05", help="significance level after Holm, in (0, 1) (default 0.05)")
+    parser.add_argument("--no-tables", action="store_true", help="skip the paper's Tables 1-3 and figures")
+    parser.add_argument("--recompute", action="store_true",
+                        help="re-run the VIO for the paper's tables even when the stored artifacts match the records")
+    args = parser.parse_args(argv)
+    try:
+        path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
+                            paper_tables=not args.no_tables, recompute=args.recompute)
+    except (ReportError, RecordError, LeaderboardError, StatsError, TargetsError, CurvesError) as err:
+        print(f"bench.report: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"bench.report: error: {err.filename or ''}: {err.strerror}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

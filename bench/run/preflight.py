@@ -1,0 +1,309 @@
+"""Validate every job of a sweep before any work starts, and before Hydra writes anything.
+
+Hydra composes and launches jobs one by one, so a typo in the fifth optimiser name, a budget
+of 0 or a missing data file would surface only after the first jobs ran. Here the command
+line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
+with Hydra's compose API, and each is checked: registered names, plugins, budget, seed,
+progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``: its search
+space, its data files), the problem itself (built once per distinct problem config, as the
+first job would build it: a serial sweep's jobs then reuse it), the optimiser built on the job's
+space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job folder that already exists
+(it must hold this very job — same resolved config — and not be in use by another process).
+The first problem found is one clear message and exit code 2; nothing has been written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+import optimizers
+from bench import problems
+from bench.records import EVAL_LOG, RecordError, lock_holder, read_job_file, read_record
+from bench.run.identity import config_hash, identity_differences
+from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
+from bench.space import Space
+
+CONF_DIR = Path(__file__).resolve().parent / "conf"
+_HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
+                             "--shell-completion", "-sc", "--resolve"}
+
+
+@dataclass
+class SweepPlan:
+    """What preflight found: the number of distinct jobs, the sweep folder (when it could be resolved)."""
+
+    n_jobs: int = 0
+    sweep_dir: Path | None = None
+    job_dirs: list[Path] = field(default_factory=list)
+
+
+def expand_jobs(argv: list[str]) -> list[list[str]]:
+    """The override lists of every job the sweep will run (config sweeper params + command line)."""
+    overrides = [a for a in argv if not a.startswith("-")]
+    # hydra.searchpath decides which configs exist; Hydra's other settings do not change jobs
+    app_overrides = [o for o in overrides
+                     if not o.lstrip("+~").startswith("hydra") or o.startswith("hydra.searchpath")]
+    parser = OverridesParser.create()
+    # The sweeper params of the primary config, read as data: composing it would need a
+    # valid default for every swept group first.
+    primary = OmegaConf.load(CONF_DIR / "config.yaml")
+    if "hydra.mode=RUN" in overrides:  # one job: Hydra ignores the sweeper's params
+        return [app_overrides]
+    params = OmegaConf.select(primary, "hydra.sweeper.params") or {}
+    sweep_params = [f"{k}={v}" for k, v in params.items()]
+    parsed = parser.parse_overrides(sweep_params + app_overrides)
+    return BasicSweeper.split_arguments(parsed, None)[0]
+
+
+_BUILT: set[str] = set()  # problem configs announced (build_problem caches the problems themselves)
+
+
+def _built_space(cfg: dict) -> Space:
+    """The space of the job's problem, built as a job builds it (``bench.job.build_problem``, cached
+    per process, so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError."""
+    from bench.problems import ProblemError
+    from bench.problems.base import build_problem
+
+    name = cfg["problem"]["name"]
+    key = json.dumps(cfg["problem"], sort_keys=True, default=str)
+    if key not in _BUILT:
+        _BUILT.add(key)
+        print(f"Checking: building problem {name} to check the optimisers on its space ...", file=sys.stderr,
+              flush=True)
+    try:
+        return build_problem(cfg).space
+    except (ProblemError, ValueError, OSError, TypeError, KeyError) as err:
+        raise ConfigError(f"problem={name}: {err}") from None
+
+
+def check_optimizer(cfg: dict, space: Space) -> None:
+    """Build the job's optimiser on ``space`` exactly as a job does, and ask it once."""
+    name = cfg["optimizer"]["name"]
+    params = cfg["optimizer"].get("params") or {}
+    if not isinstance(params, dict):
+        raise ConfigError(f"optimizer.params must be a section of hyperparameters, got {params!r}")
+    cls = optimizers.get(name)
+    try:
+        opt = cls(space.lower, space.upper, seed=int(cfg["seed"]), x0=space.reference, **params)
+    except optimizers.OptimizerError as err:
+        raise ConfigError(f"optimizer.params: {err}") from None
+    except TypeError as err:
+        raise ConfigError(f"optimizer={name}: cannot be built as {cls.__name__}(lower, upper, seed=, x0=, "
+                          f"**params) with params {sorted(params)}: {err}") from None
+    except (ValueError, ArithmeticError) as err:
+        raise ConfigError(f"optimizer={name} with params {params}: {type(err).__name__}: {err}") from None
+    try:
+        X = opt.ask()
+    except (optimizers.OptimizerError, ValueError, ArithmeticError, TypeError) as err:
+        raise ConfigError(f"optimizer={name} with params {params}: its first ask() fails: "
+                          f"{type(err).__name__}: {err}") from None
+    finally:
+        close = getattr(opt, "close", None)
+        if callable(close):
+            close()
+    space.check(X)
+
+
+def check_job(cfg: dict) -> None:
+    """Raise ConfigError if one composed job config is invalid."""
+    _check_finite(cfg, "")
+    import_plugins(cfg)
+    name = cfg["optimizer"].get("name")
+    if name not in optimizers.available():
+        raise ConfigError(f"optimizer={name!r} is not registered; valid names: {', '.join(optimizers.available())}")
+    pname = cfg["problem"].get("name")
+    if pname not in problems.available():
+        raise ConfigError(f"problem={pname!r} is not registered; valid names: {', '.join(problems.available())}")
+    budget_of(cfg)
+    seed_of(cfg)
+    progress_every_s_of(cfg)
+    factory = problems.get(pname)
+    checker = getattr(factory, "preflight", None)
+    checked = None
+    if checker is not None:
+        try:
+            checked = checker(**(cfg["problem"].get("params") or {}))
+        except (ValueError, OSError, TypeError) as err:
+            raise ConfigError(f"problem={pname}: {err}") from None
+    if isinstance(checked, Space):
+        check_optimizer(cfg, checked)
+        return
+    # the hyperparameters first on the paper's box (cheap, and most mistakes show there), then on
+    # the job's own space, which needs the problem built (its data, its bounds, fixed variables)
+    from bench.problems.analytic import paper_box_space
+
+    check_optimizer(cfg, paper_box_space())
+    check_optimizer(cfg, _built_space(cfg))
+
+
+def _check_finite(node, path: str) -> None:
+    if isinstance(node, dict):
+        for key, value in node.items():
+            _check_finite(value, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            _check_finite(value, f"{path}[{i}]")
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ConfigError(f"{path} is {node}: numbers in the config must be finite")
+
+
+def _writable(folder: Path) -> bool:
+    """Whether a file can be created in ``folder`` (a real probe: os.access says yes to root on read-only mounts)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".bench-probe-"):
+            return True
+    except OSError:
+        return False
+
+
+def check_sweep_dir(sweep_dir: Path) -> None:
+    """The sweep folder must be a folder (or not exist yet) in a place that can be written."""
+    if sweep_dir.exists() and not sweep_dir.is_dir():
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir} is a file, not a folder")
+    existing = sweep_dir
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir}: {existing} is a file, not a folder")
+    if not _writable(existing):
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir}: cannot write in {existing} (read-only or no permission)")
+    holder = lock_holder(sweep_dir)
+    if holder:
+        raise ConfigError(f"hydra.sweep.dir={sweep_dir} is in use by another sweep ({holder}); two sweeps in one "
+                          "folder would run the same jobs twice: wait for it to end or choose another folder")
+
+
+def check_job_dir(job_dir: Path, cfg: dict) -> None:
+    """An existing job folder must hold this job (same resolved config) and be free."""
+    if not job_dir.exists():
+        return
+    if not job_dir.is_dir():
+        raise ConfigError(f"job folder {job_dir} is a file, not a folder")
+    holder = lock_holder(job_dir)
+    if holder:
+        raise ConfigError(f"job folder {job_dir} is in use by {holder}; wait for it to end or choose another "
+                          "hydra.sweep.dir")
+    identity = identity_of(cfg)
+    try:
+        header = read_job_file(job_dir)
+        record = read_record(job_dir)
+    except RecordError:
+        return  # a corrupt file fails that job alone, with its message, when it runs
+    old = (header or {}).get("identity") if header else (record or {}).get("identity")
+    old_hash = (header or {}).get("config_hash") if header else (record or {}).get("config_hash")
+    log_size = (job_dir / EVAL_LOG).stat().st_size if (job_dir / EVAL_LOG).exists() else 0
+    if old_hash is None:
+        if log_size or (record is not None and record.get("status") == "ok"):
+            raise ConfigError(f"job folder {job_dir} holds results without a job identity (an older version "
+                              f"wrote them), so they cannot be checked against this config; choose another "
+                              "hydra.sweep.dir or move them away")
+        return
+    if old_hash != config_hash(identity) and (log_size or (record is not None and record.get("status") == "ok")):
+        diff = identity_differences(old or {}, identity) or "another config"
+        raise ConfigError(f"job folder {job_dir} holds a job with other settings ({diff}); resuming or skipping it "
+                          "would mix results: restore the settings or choose another hydra.sweep.dir")
+
+
+def _hydra_overrides(argv: list[str]) -> list[str]:
+    return [a for a in argv if not a.startswith("-") and a.lstrip("+~").startswith("hydra")
+            and "=" in a and not a.startswith(("hydra/", "hydra.launcher", "hydra.sweeper", "hydra.callbacks"))]
+
+
+def _job_dir(hcfg) -> tuple[Path | None, Path | None]:
+    """(sweep dir, job dir) as Hydra will resolve them from a config composed with its hydra node;
+    None where they cannot be resolved here (a subdir template that uses Hydra's runtime values)."""
+    try:
+        sweep = OmegaConf.select(hcfg, "hydra.sweep.dir", throw_on_resolution_failure=True)
+    except (OmegaConfBaseException, ValueError):
+        return None, None
+    if sweep is None:
+        return None, None
+    try:
+        sub = OmegaConf.select(hcfg, "hydra.sweep.subdir", throw_on_resolution_failure=True)
+    except (OmegaConfBaseException, ValueError):
+        return Path(str(sweep)), None
+    return Path(str(sweep)), (Path(str(sweep)) / str(sub) if sub is not None else None)
+
+
+def _job_part(hcfg) -> dict:
+    """The job's own config (Hydra's node left out), resolved, as plain data."""
+    node = OmegaConf.masked_copy(hcfg, [k for k in hcfg if k != "hydra"])
+    return OmegaConf.to_container(node, resolve=True)
+
+
+def plan(argv: list[str]) -> SweepPlan:
+    """Validate every job the command line would run; raise ConfigError/HydraException at the first problem."""
+    GlobalHydra.instance().clear()
+    result = SweepPlan()
+    seen: set[str] = set()
+    hydra_overrides = _hydra_overrides(argv)
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
+            jobs = expand_jobs(argv)
+            if len(jobs) > 4:
+                print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
+            for job_overrides in jobs:
+                hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
+                cfg = _job_part(hcfg)
+                key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
+                if key not in seen:
+                    seen.add(key)
+                    check_job(cfg)
+                result.n_jobs += 1
+                sweep_dir, job_dir = _job_dir(hcfg)
+                if sweep_dir is not None and result.sweep_dir is None:
+                    result.sweep_dir = sweep_dir
+                    check_sweep_dir(sweep_dir)
+                if job_dir is not None:
+                    check_job_dir(job_dir, cfg)
+                    result.job_dirs.append(job_dir)
+    finally:
+        GlobalHydra.instance().clear()
+    return result
+
+
+def preflight(argv: list[str]) -> int:
+    """Validate every job the command line would run; 0 if all are valid, else print why and return 2."""
+    code, _ = preflight_plan(argv)
+    return code
+
+
+def preflight_plan(argv: list[str]) -> tuple[int, SweepPlan | None]:
+    """``(exit code, plan)``: 0 and the plan when every job is valid; 2 and None after printing the reason."""
+    if any(a.split("=")[0] in _HYDRA_FLAGS_WITHOUT_JOBS for a in argv):
+        return 0, None
+    try:
+        return 0, plan(argv)
+    except ConfigError as err:
+        print(f"error: {err}")
+    except HydraException as err:
+        print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}")
+    except OmegaConfBaseException as err:
+        print(f"error: {str(err).splitlines()[0]}")
+    return 2, None
+
+
+def compose_job(overrides: list[str]) -> dict:
+    """One job's config as plain data, composed from ``conf/`` with ``overrides`` (for scripts)."""
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="script"):
+            return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
+    finally:
+        GlobalHydra.instance().clear()
+
+
+__all__ = ["SweepPlan", "check_job", "compose_job", "expand_jobs", "plan", "preflight", "preflight_plan"]

@@ -1,0 +1,178 @@
+"""The threaded filter kernel (avio/_kernels.py: run_filters, a batch split over threads) gives
+the same bits whatever the batch size and thread count, and the same bits as the serial kernel
+it replaced (commit 958a2e6, kept verbatim in tests/avio/filter/reference_kernel_958a2e6.py): every
+FilterResult array, divergence decisions and innovation statistics included."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from avio.filter import batch as avio_filter
+from avio.filter.config import FilterConfig, FilterError
+from avio.filter.prepare import prepare
+from avio.filter.batch import run, set_threads, threads
+from avio.geometry import so3_exp
+from avio.calibration import Calibration
+from test_filter import make_circle_sequence
+
+FIELDS = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "diverged", "diverged_at_frame", "n_updates",
+          "n_outliers", "sigma", "b_a_mps2", "b_g_radps", "nis", "log_det_S", "dof", "nll", "nll_slots")
+
+
+def _candidates(cal: Calibration, n: int, seed: int) -> Calibration:
+    """n perturbed calibrations around cal (one wild focal length, one non-finite)."""
+    rng = np.random.default_rng(seed)
+    c = cal.repeat(n)
+    fx = c.fx_px + rng.normal(0, 5, n)
+    fx[-1] *= 1.6
+    fx[n // 2] = np.nan
+    return Calibration(fx_px=fx, fy_px=c.fy_px + rng.normal(0, 5, n), cx_px=c.cx_px + rng.normal(0, 5, n),
+                       cy_px=c.cy_px + rng.normal(0, 5, n),
+                       R_cam_imu=so3_exp(rng.normal(0, 0.01, (n, 3))) @ c.R_cam_imu,
+                       p_imu_cam_m=c.p_imu_cam_m + rng.normal(0, 0.05, (n, 3)),
+                       time_offset_s=rng.normal(0, 0.003, n))
+
+
+def _subset(cal: Calibration, idx) -> Calibration:
+    return Calibration(*(np.asarray(getattr(cal, k))[idx] for k in (
+        "fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m", "time_offset_s")))
+
+
+def _assert_same_bits(got, want, label: str) -> None:
+    for f in FIELDS:
+        a, b = np.ascontiguousarray(getattr(got, f)), np.ascontiguousarray(getattr(want, f))
+        assert a.shape == b.shape and a.dtype == b.dtype, f"{label}: {f} {a.shape}/{a.dtype} vs {b.shape}/{b.dtype}"
+        if a.tobytes() != b.tobytes():
+            bad = np.argwhere(~((a == b) | (np.isnan(a) & np.isnan(b)) if a.dtype.kind == "f" else a != b))
+            pytest.fail(f"{label}: {f} differs at {len(bad)} entries, first {bad[:3].tolist()}")
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads():
+    yield
+    set_threads(None)
+
+
+def test_batch_size_and_thread_count_do_not_change_the_bits():
+    seq = make_circle_sequence(40, seed=3, pixel_noise_px=0.5, outlier_fraction=0.1)
+    # A speed limit just above the drive's 7.004 m/s: some calibrations diverge mid-run.
+    cfg = FilterConfig(divergence_max_speed_mps=7.02)
+    prep = prepare(seq, cfg)
+    cal = _candidates(seq.truth_calibration, 7, seed=0)
+    set_threads(1)
+    serial = run(seq, cal, cfg, prep)
+    at = serial.diverged_at_frame
+    assert at[3] == 0 and np.any(at > 0) and np.any(at < 0), at  # frozen, mid-run and no divergence
+    assert serial.n_updates.sum() > 0 and serial.n_outliers.sum() > 0
+    assert np.ptp(serial.p_world_imu_m[:, -1, 0][at < 0]) > 0  # the calibrations do differ
+    set_threads(2)
+    assert threads() == min(2, avio_filter.default_threads())
+    _assert_same_bits(run(seq, cal, cfg, prep), serial, "2 threads")
+    for i in range(len(cal)):
+        one = run(seq, _subset(cal, [i]), cfg, prep)
+        for f in FIELDS:
+            assert np.ascontiguousarray(getattr(one, f)[0]).tobytes() == \
+                np.ascontiguousarray(getattr(serial, f)[i]).tobytes(), f"calibration {i} alone: {f}"
+    order = [6, 0, 5, 1, 4, 2, 3]
+    _assert_same_bits(run(seq, _subset(cal, order), cfg, prep), _subset_result(serial, order), "reordered batch")
+
+
+def _subset_result(res, idx):
+    return type("R", (), {f: getattr(res, f)[idx] for f in FIELDS})
+
+
+def test_set_threads_refuses_bad_counts():
+    for bad in (0, -1, 1.5, "2", True):
+        with pytest.raises(FilterError, match="set_threads"):
+            set_threads(bad)
+    assert set_threads(10**6) == os.cpu_count()  # more threads than cores only costs
+    assert set_threads(None) == avio_filter.default_threads()
+
+
+def _reference_kernel():
+    path = Path(__file__).with_name("reference_kernel_958a2e6.py")
+    spec = importlib.util.spec_from_file_location("reference_kernel_958a2e6", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _reference_run(monkeypatch, seq, cal, cfg, prep):
+    """avio.filter.run with the serial reference kernel (all filters in one call) in place of
+    the threaded one (filters lo..hi-1 per call)."""
+    ref = _reference_kernel()
+    set_threads(1)
+    with monkeypatch.context() as m:
+        m.setattr(avio_filter._kernels, "run_filters", lambda lo, hi, *args: ref.run_filters(*args[:-1]))  # its signature predates out_used
+        return run(seq, cal, cfg, prep)
+
+
+@pytest.mark.slow
+def test_same_bits_as_the_serial_reference_kernel_on_the_circle(monkeypatch):
+    seq = make_circle_sequence(60, seed=1, pixel_noise_px=0.5, outlier_fraction=0.1)
+    cal = _candidates(seq.truth_calibration, 8, seed=7)
+    for mode in ("both", "none", "ransac", "mahalanobis"):
+        cfg = FilterConfig(outlier_rejection=mode, divergence_max_speed_mps=7.02)
+        prep = prepare(seq, cfg)
+        want = _reference_run(monkeypatch, seq, cal, cfg, prep)
+        set_threads(2)
+        _assert_same_bits(run(seq, cal, cfg, prep), want, f"circle, {mode}")
+
+
+@pytest.mark.slow
+@pytest.mark.data
+def test_same_bits_as_the_serial_reference_kernel_on_kitti00(monkeypatch, shared_data):
+    from avio.datasets.kitti00 import load_kitti00
+
+    seq = load_kitti00(shared_data / "kitti00", 15, 796, seed=0)
+    cal = _candidates(seq.truth_calibration, 6, seed=7)
+    # The default thresholds and a variance limit that makes every filter diverge mid-run.
+    for cfg in (FilterConfig(), FilterConfig(divergence_max_variance=25.0)):
+        prep = prepare(seq, cfg)
+        want = _reference_run(monkeypatch, seq, cal, cfg, prep)
+        set_threads(2)
+        got = run(seq, cal, cfg, prep)
+        _assert_same_bits(got, want, f"kitti00 15-796, {cfg.divergence_max_variance}")
+    assert np.all(got.diverged_at_frame > 0) | np.isnan(cal.fx_px).any()
+
+
+def test_a_cold_compile_is_announced_with_a_heartbeat_and_its_duration(monkeypatch, capsys):
+    import time
+
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: False)
+    monkeypatch.setattr(avio_filter, "_HEARTBEAT_S", 0.02)
+    with avio_filter._announce_compile():
+        time.sleep(0.1)
+    err = capsys.readouterr().err
+    assert f"compiling the VIO filter (first run only, ~{avio_filter.COMPILE_ESTIMATE_S} s" in err
+    assert "still compiling the VIO filter" in err
+    assert "compiled the VIO filter in" in err
+    # Once loaded (or with a warm cache), nothing is printed.
+    with avio_filter._announce_compile():
+        pass
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: True)
+    with avio_filter._announce_compile():
+        pass
+    assert capsys.readouterr().err == ""
+
+
+def test_the_kernel_cache_is_recognised_once_compiled():
+    seq = make_circle_sequence(8, seed=0)
+    run(seq, seq.truth_calibration, FilterConfig())
+    assert avio_filter._kernel_cached() is True
+
+
+def test_joblib_workers_default_to_cores_over_workers():
+    """The rule that keeps two joblib workers on two cores from oversubscribing: loky sets
+    NUMBA_NUM_THREADS = cores // n_jobs in its workers and the filter's default follows it."""
+    from joblib import Parallel, delayed
+
+    got = Parallel(n_jobs=2)(delayed(avio_filter.default_threads)() for _ in range(2))
+    assert got == [max(1, os.cpu_count() // 2)] * 2
