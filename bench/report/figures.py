@@ -34,13 +34,13 @@ KEY_FIELD = "avio-bench-key"  # PNG text chunk: what the figure was drawn from
 
 def figure_key(*parts) -> str:
     """Hex SHA-256 of what a figure is drawn from (JSON-able parts, bytes or str) and of the
-    drawing code (this module, ``bench.paper_figures`` and matplotlib's version)."""
+    drawing code (this module, ``bench.report.paper.figures`` and matplotlib's version)."""
     import matplotlib
 
     digest = hashlib.sha256(matplotlib.__version__.encode())
     here = Path(__file__).resolve().parent
-    for module in ("figures.py", "paper_figures.py"):
-        digest.update((here / module).read_bytes())
+    for module in (here / "figures.py", here / "paper" / "figures.py"):
+        digest.update(module.read_bytes())
     for part in parts:
         digest.update(part if isinstance(part, bytes) else
                       (part if isinstance(part, str) else json.dumps(part, sort_keys=True, default=str)).encode())

@@ -147,5 +147,6 @@ def header_mismatch(old: dict, new: dict) -> str | None:
     if (old.get("code") or {}).get("sources") != new["code"]["sources"]:
         return (f"the code that asks and scores points changed (sources {(old.get('code') or {}).get('sources')} "
                 f"at {(old.get('code') or {}).get('git_commit')} -> {new['code']['sources']} at "
-                f"{new['code']['git_commit']})")
+                f"{new['code']['git_commit']}; a job made by other code, e.g. before the package move of 0.2.0, is "
+                f"not resumed in place, and its report still builds from its records: python -m bench.report DIR)")
     return None
