@@ -1,4 +1,4 @@
-"""Shared by the tests of scripts/: the scripts are files, not a package, so they load by path."""
+"""Shared by the tests of studies/objective/: the scripts are files, not a package, so they load by path."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+SCRIPTS = Path(__file__).resolve().parents[3] / "studies/objective"
 
 
 def _load(name: str):
@@ -19,5 +19,5 @@ def _load(name: str):
 
 @pytest.fixture
 def load_script():
-    """``load_script("name")``: the module scripts/name.py."""
+    """``load_script("name")``: the module studies/objective/name.py."""
     return _load
