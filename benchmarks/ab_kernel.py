@@ -1,17 +1,21 @@
 """The filter kernel of the working tree against the one of another commit, timed side by side
 in one process, and whether they give the same bits (issue 13's A/B of a kernel change).
 
-    python scripts/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
+    python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
 evaluation), so two benchmark runs one after the other can differ by 50 % with the same code.
 The script extracts ``avio/`` of ``--base`` (git archive) into a temporary folder as package
-``avio_base`` (its imports rewritten), compiles it once (kept in that folder, reused by the next
+``avio_base`` (its imports rewritten, in every subpackage), compiles it once (kept in that folder, reused by the next
 run for the same commit) and then times one batch of each kernel per pair, in a new random
 order each pair, on kitti00 frames 15–796. It prints the median time per evaluation of each,
 the median and quartiles of the per-pair ratios (base / working tree: above 1 means the working
 tree is faster) and whether the two gave the same positions, velocities, sigmas and innovation
 statistics to the bit.
+
+The base commit may predate the package layout of e67dede (the kernel in avio/_kernels.py, the
+filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's layout is read
+from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import importlib
 import io
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -32,7 +37,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "scripts"))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 _IMPORT = re.compile(r"^(\s*)(from|import) avio\b", re.MULTILINE)
 
@@ -43,28 +48,43 @@ def extract_base(commit: str) -> Path:
                          text=True).stdout.strip()
     root = Path(tempfile.gettempdir()) / f"avio_ab_{sha[:12]}"
     pkg = root / "avio_base"
-    if not pkg.is_dir():
+    done = root / "avio_base.rewritten"  # a folder left half-made (or by an older version of this script) is redone
+    if not done.is_file():
+        shutil.rmtree(root, ignore_errors=True)
         blob = subprocess.run(["git", "archive", sha, "avio"], cwd=REPO, check=True, capture_output=True).stdout
         with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
             tar.extractall(root / "_x", filter="data")
         (root / "_x" / "avio").rename(pkg)
-        for path in pkg.glob("*.py"):
+        for path in pkg.rglob("*.py"):
             path.write_text(_IMPORT.sub(r"\1\2 avio_base", path.read_text()))
+        done.write_text(sha + "\n")
     return root
+
+
+def module_names(name: str, pkg: Path) -> dict[str, str]:
+    """The modules ab_kernel uses, in package ``name`` at folder ``pkg``, by its layout: from
+    e67dede on the loaders live in avio/datasets/ and Calibration in avio/calibration.py (the
+    filter, avio/filter/, a package exporting the same names); before, avio/kitti00.py and
+    avio/sequence.py (avio/filter.py a module)."""
+    grouped = (pkg / "datasets" / "kitti00.py").is_file()
+    return {"filter": f"{name}.filter", "geometry": f"{name}.geometry",
+            "kitti00": f"{name}.datasets.kitti00" if grouped else f"{name}.kitti00",
+            "calibration": f"{name}.calibration" if (pkg / "calibration.py").is_file() else f"{name}.sequence"}
 
 
 def _load(name: str, data: Path, n: int):
     """(filter module, sequence, preparation, calibrations) of package ``name``."""
-    filt = importlib.import_module(f"{name}.filter")
-    kitti = importlib.import_module(f"{name}.kitti00")
-    geometry = importlib.import_module(f"{name}.geometry")
-    sequence = importlib.import_module(f"{name}.sequence")
+    names = module_names(name, Path(importlib.import_module(name).__file__).parent)
+    filt = importlib.import_module(names["filter"])
+    kitti = importlib.import_module(names["kitti00"])
+    geometry = importlib.import_module(names["geometry"])
+    calibration = importlib.import_module(names["calibration"])
     seq = kitti.load_kitti00(data / "kitti00", 15, 796, seed=0)
     cfg = filt.FilterConfig()
     prep = filt.prepare(seq, cfg)
     rng = np.random.default_rng(n)  # bench_filter.py's _candidates, with this package's classes
     out = seq.truth_calibration.repeat(n)
-    cals = sequence.Calibration(
+    cals = calibration.Calibration(
         fx_px=out.fx_px + rng.normal(0, 5, n), fy_px=out.fy_px + rng.normal(0, 5, n),
         cx_px=out.cx_px + rng.normal(0, 5, n), cy_px=out.cy_px + rng.normal(0, 5, n),
         R_cam_imu=geometry.so3_exp(rng.normal(0, 0.01, (n, 3))) @ out.R_cam_imu,

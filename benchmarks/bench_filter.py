@@ -1,11 +1,11 @@
 """Accuracy and speed figures of the batched trifocal VIO filter (avio/filter.py).
 
-    python scripts/bench_filter.py accuracy [--seeds 0 1 2] [--set key=value ...]
-    python scripts/bench_filter.py outliers [--seeds 0 1 2]
-    python scripts/bench_filter.py speed [--batches 1 8 64 256] [--threads 1 2] [--repeats 5]
+    python benchmarks/bench_filter.py accuracy [--seeds 0 1 2] [--set key=value ...]
+    python benchmarks/bench_filter.py outliers [--seeds 0 1 2]
+    python benchmarks/bench_filter.py speed [--batches 1 8 64 256] [--threads 1 2] [--repeats 5]
                                          [--skip scaling harness job compile]
-    python scripts/bench_filter.py profile [--batch 64]
-    python scripts/bench_filter.py schedule [--evals JOB/evals.jsonl]
+    python benchmarks/bench_filter.py profile [--batch 64]
+    python benchmarks/bench_filter.py schedule [--evals JOB/evals.jsonl]
 
 accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the truth calibration
     on the simulated paper drives (avio.simulator, SimConfig.paper_540m / paper_928m) and on the
@@ -17,7 +17,7 @@ speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) f
     process CPU; the calibration-independent preparation and the first call's numba cache load
     excluded and reported separately), the per-evaluation gain of batch 64 on all threads over
     batch 1 on one, the peak memory, a scaling line (ms per evaluation against frames and
-    features per update), the harness overhead (scripts/bench_harness.py), the default job's
+    features per update), the harness overhead (benchmarks/bench_harness.py), the default job's
     wall time (psoga, 500 evaluations on ``synthetic``) and the first-run compile time (a
     subprocess with an empty NUMBA_CACHE_DIR).
 profile: cProfile of one batch, top functions by own time.
@@ -248,8 +248,8 @@ def speed(args, config: FilterConfig) -> None:
     if "scaling" not in args.skip:
         _scaling(args, config)
     if "harness" not in args.skip:
-        _, done = _subprocess_s([sys.executable, "scripts/bench_harness.py", "--repeats", str(args.repeats)])
-        print(f"harness overhead (scripts/bench_harness.py): {done.stdout.strip().splitlines()[-1]}", flush=True)
+        _, done = _subprocess_s([sys.executable, str(REPO / "benchmarks" / "bench_harness.py"), "--repeats", str(args.repeats)])
+        print(f"harness overhead (benchmarks/bench_harness.py): {done.stdout.strip().splitlines()[-1]}", flush=True)
     if "job" not in args.skip:
         walls = []
         for i in range(args.job_repeats):

@@ -1,6 +1,6 @@
 """Harness overhead: wall time of a whole job against the time spent inside ``evaluate``.
 
-    python scripts/bench_harness.py [--repeats 5] [--delay 0.01] [--evals 2000]
+    python benchmarks/bench_harness.py [--repeats 5] [--delay 0.01] [--evals 2000]
 
 Runs the analytic sphere with a fixed delay per batch (imitating an objective that costs
 ``--delay`` seconds per batch) under random search (batch 32), several times, and prints the

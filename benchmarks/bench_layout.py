@@ -14,7 +14,7 @@ the simplest of its dense phases) written three ways, timed side by side, bits c
 - ``lanes L (run-time)``: the same with the lane count read from the shape, so the loop
   vectoriser takes the lane loops (with a run-time alias check each).
 
-    python scripts/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
+    python benchmarks/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
 
 Prints microseconds per filter and call (median of --repeats), the ratio to ``committed`` and
 whether the result is bit-identical, plus the count of scalar and packed multiplies in each

@@ -4,10 +4,10 @@ Also the optimiser's own overhead: seconds per run spent inside ask() and tell()
 evaluations themselves are excluded). Two extra studies back the defaults in conf/optimizer/:
 ``--stop-rules`` (psoga's paper rule vs patience) and ``--tpe-batches`` (TPE batch 1 vs 8).
 
-    python scripts/bench_optimizers.py                      # all optimisers, 10 seeds, 1,000 evaluations
-    python scripts/bench_optimizers.py --optimizers psoga cmaes --seeds 5
-    python scripts/bench_optimizers.py --stop-rules
-    python scripts/bench_optimizers.py --tpe-batches
+    python benchmarks/bench_optimizers.py                      # all optimisers, 10 seeds, 1,000 evaluations
+    python benchmarks/bench_optimizers.py --optimizers psoga cmaes --seeds 5
+    python benchmarks/bench_optimizers.py --stop-rules
+    python benchmarks/bench_optimizers.py --tpe-batches
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Longest silence of a command: run it, time-stamp every output line (stdout and stderr, lines
 ending in \n or tqdm's \r), and print the longest gap between two of them and what came after it.
 
-    python scripts/output_gaps.py -- python -m bench problem=synthetic optimizer=psoga seed=0 budget.evals=100
+    python benchmarks/output_gaps.py -- python -m bench problem=synthetic optimizer=psoga seed=0 budget.evals=100
 
 Prints ``longest gap: S s before: <line>`` and the command's exit code; exits 1 when the gap
 exceeds ``--max-gap`` (default 10 s).

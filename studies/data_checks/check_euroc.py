@@ -8,7 +8,7 @@ RMSE by 0.01-0.03 m, so one draw means little). Drift: ``drift m/m`` is
 avio.metrics.drift_metrics (mean translation error over 1 m path segments, per metre);
 ``end err/path %`` the final position error over the path length.
 
-    python scripts/check_euroc.py [--data-dir DIR] [--seeds 0 1 2 3 4] [--min-parallax 0.005]
+    python studies/data_checks/check_euroc.py [--data-dir DIR] [--seeds 0 1 2 3 4] [--min-parallax 0.005]
         [--imu-variance-ratio 1e6]
 
 The filter settings are the EuRoC problem's (bench/conf/problem/euroc.yaml): ``min_parallax_m``

@@ -1,6 +1,6 @@
 """Does evo agree with our trajectories? evo's APE on the exported files against our position RMSE.
 
-    python scripts/check_evo.py JOB_DIR [--calibration best|reference|truth] [--drive calibration|holdout]
+    python studies/data_checks/check_evo.py JOB_DIR [--calibration best|reference|truth] [--drive calibration|holdout]
 
 Exports the job's trajectories with ``python -m bench.export`` (TUM and KITTI), reads them back
 with evo's own readers and prints evo's absolute pose error (translation part, no alignment, no

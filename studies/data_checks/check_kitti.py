@@ -1,6 +1,6 @@
 """Print the figures that check the KITTI loaders and the KLT front end on the real data.
 
-Usage: python scripts/check_kitti.py [DATA_DIR]   (default ../shared/data from the repo root)
+Usage: python studies/data_checks/check_kitti.py [DATA_DIR]   (default ../shared/data from the repo root)
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Where the kitti00 928 m window goes wrong: ground-truth yaw rate against the real gyro, and
 the filter's position RMSE with the truth calibration on sub-windows.
 
-    python scripts/check_kitti00_window.py [--around 2686 2700] [--seed 0]
+    python studies/data_checks/check_kitti00_window.py [--around 2686 2700] [--seed 0]
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ of noise per pair).
 Beside it, the camera-frame correction ``D = R_opt R_rect^T`` of the committed rotation-only
 likelihood runs (results/kitti00_tracks_nll_rotation), so the two can be compared.
 
-    python scripts/check_kitti_extrinsic.py [--data DIR] [--first 15] [--last 153]
+    python studies/data_checks/check_kitti_extrinsic.py [--data DIR] [--first 15] [--last 153]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.datasets.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402

@@ -1,6 +1,6 @@
 """Print the simulator's figures: timings, drive lengths, IMU consistency, tracks, render accuracy.
 
-Usage: python scripts/check_simulator.py [--seed 0] [--render-frames 30]
+Usage: python studies/data_checks/check_simulator.py [--seed 0] [--render-frames 30]
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "avio" / "sim"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "avio" / "sim"))
 
 from avio.geometry import geodesic_angle_deg  # noqa: E402
 from avio.sim.render import load_projections, render_frames  # noqa: E402

@@ -1,8 +1,8 @@
-"""Summarise the identifiability study (scripts/make_identifiability.sh): per configuration
+"""Summarise the identifiability study (studies/identifiability/make_identifiability.sh): per configuration
 (objective x drives x noise realisations x free variables), the calibrated camera's errors against the truth and the
 held-out RMSE at the calibrated and at the reference calibration, medians over the seeds.
 
-    python scripts/identifiability.py results/identifiability
+    python studies/identifiability/identifiability.py results/identifiability
 
 Also the ray error (avio.calibration_error.ray_error_deg: the largest angle between the IMU-frame
 rays of the same pixels under the calibration and the truth), which a principal-point error and
@@ -11,7 +11,7 @@ paired seed by seed, and whether each run's best f is below f(truth) (the optimi
 objective's level at the truth). Writes ``summary.csv``, ``summary.md`` (the README's table),
 ``summary.png`` and ``runs.csv`` into the folder.
 
-    python scripts/identifiability.py results/identifiability --compare CONFIG_A CONFIG_B
+    python studies/identifiability/identifiability.py results/identifiability --compare CONFIG_A CONFIG_B
 
 reads the folder's ``runs.csv`` instead and compares two configurations seed by seed (the seeds
 both have): for each error, the ray error and the held-out RMSE, the medians, in how many seeds
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.calibration import calibration_errors, ray_error_deg  # noqa: E402
@@ -117,7 +117,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         row["holdout_rmse_reference_m"] = g["holdout_rmse_reference_m"].median()
         row["holdout_better_than_reference"] = f"{int((g.holdout_rmse_m < g.holdout_rmse_reference_m).sum())}/{len(g)}"
         # Paired, seed by seed: medians taken separately over the seeds cannot say whether the
-        # calibration beats the truth (scripts/objective_bias.py tests that on fresh drives).
+        # calibration beats the truth (studies/objective/objective_bias.py tests that on fresh drives).
         row["holdout_minus_truth_m"] = (g.holdout_rmse_m - g.holdout_rmse_truth_m).median()
         row["holdout_better_than_truth"] = f"{int((g.holdout_rmse_m < g.holdout_rmse_truth_m).sum())}/{len(g)}"
         # Whose error is it? A run whose best f is above f(truth) stopped short of the objective's

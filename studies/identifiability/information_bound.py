@@ -8,7 +8,7 @@ can be judged reachable or not before any optimiser runs.
 
 Method (the textbook M-estimator "sandwich"): on M fresh paper_540m drives of each data seed's
 camera (``simulate(config, (s, 100 + i), true_calibration=camera)``, as
-scripts/objective_bias.py), one batch per drive holds the truth and a central-difference design
+studies/objective/objective_bias.py), one batch per drive holds the truth and a central-difference design
 around it in the full 10-variable local space (steps STEP: ``x_t``, ``x_t +- h_i e_i``,
 ``x_t +- h_i e_i +- h_j e_j``). Per drive: the gradient g (10,) and Hessian (10, 10) at the truth
 of the additive per-drive objective (``position_rmse``: its square, the mean squared error that
@@ -23,7 +23,7 @@ origin of y). Drawing eps gives the minimiser's distribution per camera, turned 
 calibration errors (avio.calibration_error) against that seed's truth, and, by drawing one run
 per seed and taking the median over the seeds, the distribution of the study's median.
 
-    python scripts/information_bound.py [--seeds 0 1 2 3 4] [--drives 16] [--predict-seeds 0..9]
+    python studies/identifiability/information_bound.py [--seeds 0 1 2 3 4] [--drives 16] [--predict-seeds 0..9]
 
 The quadratic model holds near the truth (steps STEP, the size of the scatter it predicts); where
 the objective is rough (the likelihood's gate decisions) G carries that roughness at the step's
@@ -40,15 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
 from avio.calibration import calibration_errors, ray_error_deg  # noqa: E402
 from avio.filter.batch import set_threads  # noqa: E402
 from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
-from objective_bias import DRIVE, FRESH_SEED0  # noqa: E402  (scripts/objective_bias.py)
+from objective_bias import DRIVE, FRESH_SEED0  # noqa: E402  (studies/objective/objective_bias.py)
 
 #: central-difference step per local-space variable (px, deg, m), about the size of the scatter
 #: to be predicted: with a third of it the mean Hessians over 80 drives are not positive definite

@@ -1,7 +1,7 @@
 """The objective along the straight line from the truth to a run's best point, with the filter's
 update decisions counted: is the run's minimum a valley or a cell of luckier decisions?
 
-scripts/information_bound.py predicts where the minimum of a K-drive objective lies from its
+studies/identifiability/information_bound.py predicts where the minimum of a K-drive objective lies from its
 curvature at the truth; the identifiability study's runs end 2-3x farther out, every one below
 f(truth). This script evaluates a run's own problem (its record's params, so its own drives) at
 ``truth + t (best - truth)`` in the run's space (``truth``: the problem's truth in that space,
@@ -10,7 +10,7 @@ updates used and rejected over all its drives. A jump of f between neighbouring 
 few decisions change says the minimum is a cell of the objective's piecewise-smooth surface, not
 the bottom of a valley.
 
-    python scripts/line_scan.py results/identifiability/innovation_nll_fourdrive_7free_1600evals_10seeds
+    python studies/identifiability/line_scan.py results/identifiability/innovation_nll_fourdrive_7free_1600evals_10seeds
         [--seeds 3] [--t 0 0.5 0.9 ...] [--fine 0.9 1.1 21] [--filter '{"outlier_decisions": "reference"}']
         [--along dx --span 0.24 13]
 
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.filter.batch import set_threads  # noqa: E402

@@ -20,12 +20,12 @@
 # the last per-filter decisions, which left jumps along dx), and the likelihood's own- and
 # reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
 # hold over twenty?). Then the summary table and figure
-# (scripts/identifiability.py).
-#   bash scripts/make_identifiability.sh [evals] [configuration ...]
+# (studies/identifiability/identifiability.py).
+#   bash studies/identifiability/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
 # others kept; without, the whole study is re-made.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 evals=${1:-400}
 shift || true
 out=results/identifiability
@@ -69,4 +69,4 @@ for name in "$@"; do
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done
-python scripts/identifiability.py "$out"
+python studies/identifiability/identifiability.py "$out"

@@ -1,6 +1,6 @@
 """Is the objective's optimum the truth? The invariants and figures of issue 11, printed.
 
-    python scripts/check_objective.py [--seeds 20] [--profile-points 21] [--drives 1 4]
+    python studies/objective/check_objective.py [--seeds 20] [--profile-points 21] [--drives 1 4]
 
 1. Perfect data (noise-free IMU, 0 px, no outliers) on the default 540 m drive with its stop:
    f(truth) under the position RMSE, and where each variable's 1-D profile has its minimum
@@ -19,7 +19,7 @@
    against the rectified KITTI calibration (avio.calibration_error.ray_error_deg); then how far
    the rectified extrinsic itself lies from the orientation the tracks imply against the ground
    truth's calibration chain, and the rotation-only likelihood from that
-   (scripts/check_kitti_extrinsic.py, PnP, frames 15-153).
+   (studies/data_checks/check_kitti_extrinsic.py, PnP, frames 15-153).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.calibration import ray_error_deg  # noqa: E402
@@ -148,7 +148,7 @@ def _print_ranking(f: list, rays: np.ndarray) -> None:
 def identifiability_summary() -> None:
     path = ROOT / "results" / "identifiability" / "summary.csv"
     if not path.is_file():
-        print(f"4. {path.relative_to(ROOT)} not found (make it with bash scripts/make_identifiability.sh)")
+        print(f"4. {path.relative_to(ROOT)} not found (make it with bash studies/identifiability/make_identifiability.sh)")
         return
     import pandas as pd
 
@@ -182,8 +182,8 @@ def real_track_rotations() -> None:
         for opt, angles in sorted(by_opt.items()):
             print(f"   {name:>27} ({objective}) {opt:>5}: {np.median(angles):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in angles)});"
                   f" ray error {np.median(rays[opt]):.2f} deg (seeds: {', '.join(f'{a:.2f}' for a in rays[opt])})")
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import check_kitti_extrinsic as cke  # scripts/check_kitti_extrinsic.py
+    sys.path.insert(0, str(ROOT / "studies" / "data_checks"))
+    import check_kitti_extrinsic as cke  # studies/data_checks/check_kitti_extrinsic.py
 
     from bench.problems.vio import default_data_dir
 

@@ -1,6 +1,6 @@
 """The innovation likelihood's slope at the truth along one variable, split into its parts.
 
-scripts/objective_bias.py finds one significant slope of ``innovation_nll`` at the truth, along
+studies/objective/objective_bias.py finds one significant slope of ``innovation_nll`` at the truth, along
 fy. This script measures it on fresh drives of the study's 5 cameras (as objective_bias.py
 builds them: data seed s, drives ``(s, 100 + i)``) for the truth +- one step along ``--var``,
 and prints the mean slope over the drives (+- SE, t) of:
@@ -16,7 +16,7 @@ A log det part that is the same on every kind of data and a NIS part that balanc
 with some noise sources say where the tilt comes from (README: "The likelihood has one small
 deterministic tilt, along fy").
 
-    python scripts/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
+    python studies/objective/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
         [--step 0.5] [--filter '{"imu_noise_scale": 1.4}'] [--sim '{"gyro_bias_radps": [0, 0, 0]}']
         [--imu-scale 2]
 """
@@ -32,16 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
 from avio.filter.batch import set_threads  # noqa: E402
 from avio.objectives import scored_frames  # noqa: E402
 from avio.sequence import ImuNoise  # noqa: E402
 from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
-from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (scripts/objective_bias.py)
+from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (studies/objective/objective_bias.py)
 
 PARTS = ("composite", "joint", "joint_nis", "joint_ldS", "used")
 #: besides the slopes, the objective's curvature along the variable (per unit^2)

@@ -10,7 +10,7 @@ position RMSE and the innovation NLL at the reference calibration (one filter ru
 user adding a dataset can see where the noise model is consistent before trusting the
 likelihood on it; pass a setting on with ``problem.params.filter={pixel_sigma_px: ...}``.
 
-    python scripts/noise_consistency.py [--problem kitti00_tracks] [--sigmas 0.1 0.15 0.2 0.3 0.7]
+    python studies/objective/noise_consistency.py [--problem kitti00_tracks] [--sigmas 0.1 0.15 0.2 0.3 0.7]
         [--imu-scales 1.0 0.5] [overrides ...]
 
 Extra arguments are Hydra overrides of the job (e.g. ``problem.params.window=[15,153]``).
@@ -22,7 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.filter.batch import set_threads  # noqa: E402

@@ -1,7 +1,7 @@
 """Is the objectives' minimiser biased away from the truth calibration in expectation, or only
 scattered by noise?
 
-The identifiability study (results/identifiability, scripts/make_identifiability.sh) found,
+The identifiability study (results/identifiability, studies/identifiability/make_identifiability.sh) found,
 under position_rmse with 4 drives, calibrations ~1 deg / 7.5 px / 23 cm from the truth that
 score better than the truth on the held-out drive. Either the objective's expected optimum is
 not the truth (a systematic error of the filter/objective) or the study overfitted its
@@ -14,7 +14,7 @@ M fresh paper_540m drives of that camera, ``simulate(config, (s, 100 + i), true_
 for i < M (disjoint from the study's calibration drives s, (s, 1..3) and its held-out drive
 (s, 1000)). Each drive runs ONE batch through the repo's machinery (VioProblem.score ->
 avio.filter.run, avio.objectives) holding: the truth, the reference, the best calibration of
-each of the 8 study configurations for this seed (decoded as scripts/identifiability.py does),
+each of the 8 study configurations for this seed (decoded as studies/identifiability/identifiability.py does),
 and the truth +- one step along each of the 10 local-space variables. From it:
 
 1. the mean over the M drives of position_rmse (m) and innovation_nll (nats per residual) at
@@ -29,9 +29,9 @@ and the truth +- one step along each of the 10 local-space variables. From it:
    objective, to compare directions and sizes.
 3. attribution: the same with the simulator's noise sources isolated by SimConfig overrides
    (``default``; ``pixel``: pixel noise and no IMU noise/bias, no outliers; ``imu``: IMU noise
-   and biases only; ``none``: perfect data, scripts/check_objective.py's PERFECT).
+   and biases only; ``none``: perfect data, studies/objective/check_objective.py's PERFECT).
 
-    python scripts/objective_bias.py [--seeds 0 1 2 3 4] [--drives 16] [--noise default pixel imu none]
+    python studies/objective/objective_bias.py [--seeds 0 1 2 3 4] [--drives 16] [--noise default pixel imu none]
 
 The filter runs on one thread (another session may share the machine).
 """
@@ -45,15 +45,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
 from avio.filter.batch import set_threads  # noqa: E402
 from avio.calibration import Calibration  # noqa: E402
 from avio.sim.simulator import SimConfig, simulate  # noqa: E402
 from bench.problems.synthetic import Synthetic  # noqa: E402
-from identifiability import best_calibrations, load  # noqa: E402  (scripts/identifiability.py)
+from identifiability import best_calibrations, load  # noqa: E402  (studies/identifiability/identifiability.py)
 
 DRIVE = "paper_540m"
 FRESH_SEED0 = 100  # second entropy word of the fresh drives: (s, 100 + i)

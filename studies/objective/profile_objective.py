@@ -1,6 +1,6 @@
 """Is the objective informative? Profile it along each calibration variable.
 
-    python scripts/profile_objective.py problem=synthetic [--points 21] [--out results/synthetic/profile]
+    python studies/objective/profile_objective.py problem=synthetic [--points 21] [--out results/synthetic/profile]
 
 Evaluates the VIO position RMSE along each variable of the problem's space across its bounds
 (Table 1 for the paper space), the other variables at the truth (the reference when the truth

@@ -1,4 +1,4 @@
-"""scripts/bench_filter.py: the schedule replay's two-thread makespan; the scaling line."""
+"""benchmarks/bench_filter.py: the schedule replay's two-thread makespan; the scaling line."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""The kernel's measuring scripts still fit the kernel: scripts/profile_kernel.py patches
-avio/_kernels.py by anchors on its source text, scripts/ab_kernel.py rewrites another commit's
-avio into package avio_base. Both would only fail when someone runs them, long after the edit
-that broke them."""
+"""The kernel's measuring scripts still fit the kernel: benchmarks/profile_kernel.py patches
+avio/filter/{update,kernels,batch}.py by anchors on their source text, benchmarks/ab_kernel.py
+rewrites another commit's avio (either layout: avio/filter/ a package, or before e67dede
+avio/_kernels.py and avio/filter.py) into package avio_base. Both would only fail when someone
+runs them, long after the edit that broke them."""
 
 from __future__ import annotations
 
@@ -17,11 +18,13 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles(load_script):
     prof = load_script("profile_kernel")
-    patched = prof.patch_kernels((REPO / "avio" / "_kernels.py").read_text())
-    ast.parse(patched)  # valid Python
+    patched = {name: patch((REPO / "avio" / name).read_text()) for name, patch in prof.PATCHES.items()}
+    for text in patched.values():
+        ast.parse(text)  # valid Python
+    kernel = patched["filter/update.py"] + patched["filter/kernels.py"]
     for i in range(len(prof.PHASES)):
-        assert f"range(rep[{i}])" in patched or f"range(rep[{i}] - 1)" in patched, prof.PHASES[i]
-    ast.parse(prof.patch_filter((REPO / "avio" / "filter.py").read_text()))
+        assert f"range(rep[{i}])" in kernel or f"range(rep[{i}] - 1)" in kernel, prof.PHASES[i]
+    assert "REP = np.ones" in patched["filter/batch.py"]
 
 
 def test_a_changed_kernel_is_a_clear_error_naming_the_anchor(load_script):
@@ -35,16 +38,23 @@ def test_the_base_package_imports_only_itself(tmp_path, monkeypatch, load_script
         pytest.skip("not a git checkout")
     ab = load_script("ab_kernel")
     monkeypatch.setattr(ab.tempfile, "gettempdir", lambda: str(tmp_path))
-    pkg = ab.extract_base("HEAD") / "avio_base"
-    sources = {p.name: p.read_text() for p in pkg.glob("*.py")}
-    assert "_kernels.py" in sources and "filter.py" in sources
-    for name, text in sources.items():
-        assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), name
-    assert "from avio_base._linalg import" in sources["_kernels.py"]
+    layouts = [("HEAD", "filter/kernels.py", "from avio_base.filter._linalg import", "avio_base.datasets.kitti00")]
+    # a base from before the package layout (e67dede): the kernel in avio/_kernels.py, the filter in avio/filter.py
+    if subprocess.run(["git", "cat-file", "-e", "c320580^{commit}"], cwd=REPO, capture_output=True).returncode == 0:
+        layouts.append(("c320580", "_kernels.py", "from avio_base._linalg import", "avio_base.kitti00"))
+    for commit, kernel, imports, kitti in layouts:
+        pkg = ab.extract_base(commit) / "avio_base"
+        sources = {p.relative_to(pkg).as_posix(): p.read_text() for p in pkg.rglob("*.py")}
+        assert kernel in sources and ("filter.py" in sources or "filter/batch.py" in sources), commit
+        for name, text in sources.items():
+            assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), (commit, name)
+        assert imports in sources[kernel], commit
+        assert ab.module_names("avio_base", pkg)["kitti00"] == kitti, commit
+    assert ab.module_names("avio", REPO / "avio")["kitti00"] == "avio.datasets.kitti00"
 
 
 def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, capsys):
-    """scripts/bench_layout.py's variants compute what the kernel computes (else its ratios
+    """benchmarks/bench_layout.py's variants compute what the kernel computes (else its ratios
     compare different work)."""
     layout = load_script("bench_layout")
     layout.main(["--lanes", "4", "--runtime-lanes", "8", "--repeats", "1", "--calls", "16"])

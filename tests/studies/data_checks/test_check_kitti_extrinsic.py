@@ -1,4 +1,4 @@
-"""scripts/check_kitti_extrinsic.py: the camera orientation the real KITTI tracks imply, against the
+"""studies/data_checks/check_kitti_extrinsic.py: the camera orientation the real KITTI tracks imply, against the
 calibration chain of the ground truth."""
 
 from __future__ import annotations

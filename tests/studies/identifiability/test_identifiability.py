@@ -1,4 +1,4 @@
-"""scripts/identifiability.py: the study's summary, one row per configuration folder; two configurations
+"""studies/identifiability/identifiability.py: the study's summary, one row per configuration folder; two configurations
 compared seed by seed."""
 
 from __future__ import annotations

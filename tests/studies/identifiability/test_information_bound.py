@@ -1,4 +1,4 @@
-"""scripts/information_bound.py: the K-drive minimiser's scatter from curvature and gradient noise."""
+"""studies/identifiability/information_bound.py: the K-drive minimiser's scatter from curvature and gradient noise."""
 
 from __future__ import annotations
 

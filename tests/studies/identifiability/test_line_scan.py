@@ -1,4 +1,4 @@
-"""scripts/line_scan.py: the objective along the line from the truth to a run's best point."""
+"""studies/identifiability/line_scan.py: the objective along the line from the truth to a run's best point."""
 
 from __future__ import annotations
 

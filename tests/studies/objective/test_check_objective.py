@@ -1,4 +1,4 @@
-"""scripts/check_objective.py: which seeds the reference wins, set against its ray error."""
+"""studies/objective/check_objective.py: which seeds the reference wins, set against its ray error."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""scripts/likelihood_tilt.py: the likelihood's slope at the truth, split into its parts."""
+"""studies/objective/likelihood_tilt.py: the likelihood's slope at the truth, split into its parts."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""scripts/noise_consistency.py: the noise-model check a user runs on a new dataset."""
+"""studies/objective/noise_consistency.py: the noise-model check a user runs on a new dataset."""
 
 from __future__ import annotations
 
