@@ -1,4 +1,4 @@
-"""Accuracy and speed figures of the batched trifocal VIO filter (avio/filter.py).
+"""Accuracy and speed figures of the batched trifocal VIO filter (avio/filter/).
 
     python benchmarks/bench_filter.py accuracy [--seeds 0 1 2] [--set key=value ...]
     python benchmarks/bench_filter.py outliers [--seeds 0 1 2]
@@ -8,7 +8,7 @@
     python benchmarks/bench_filter.py schedule [--evals JOB/evals.jsonl]
 
 accuracy: position/velocity/attitude RMSE, mean, std (avio.metrics) with the truth calibration
-    on the simulated paper drives (avio.simulator, SimConfig.paper_540m / paper_928m) and on the
+    on the simulated paper drives (avio.sim.simulator, SimConfig.paper_540m / paper_928m) and on the
     kitti00 windows (real IMU, simulated camera; frames 15–796 and 2404–3553), one line per seed.
 outliers: the same for each outlier_rejection mode (how the default was chosen).
 speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) for each batch
@@ -148,7 +148,7 @@ def _subprocess_s(cmd, env=None, cwd=REPO):
 _COLD = """import sys, time
 sys.path.insert(0, {repo!r})
 from avio.filter import FilterConfig, prepare, run
-from avio.kitti00 import load_kitti00
+from avio.datasets.kitti00 import load_kitti00
 seq = load_kitti00({data!r}, 15, 60, seed=0)
 prep = prepare(seq, FilterConfig())
 t0 = time.perf_counter()

@@ -1,5 +1,5 @@
 """Does a vectorising layout pay for the filter's dense phases (issue 13)? The covariance
-prediction ``P <- F P F^T + Q`` (avio._kernels.propagate_covariance, ~6 % of the kernel and
+prediction ``P <- F P F^T + Q`` (avio.filter.kernels.propagate_covariance, ~6 % of the kernel and
 the simplest of its dense phases) written three ways, timed side by side, bits compared:
 
 - ``committed``: one filter, constant loop bounds (27, 15): LLVM unrolls the rows and its SLP

@@ -4,7 +4,7 @@ held-out RMSE at the calibrated and at the reference calibration, medians over t
 
     python studies/identifiability/identifiability.py results/identifiability
 
-Also the ray error (avio.calibration_error.ray_error_deg: the largest angle between the IMU-frame
+Also the ray error (avio.calibration.ray_error_deg: the largest angle between the IMU-frame
 rays of the same pixels under the calibration and the truth), which a principal-point error and
 the rotation that compensates it do not add up in, and the held-out RMSE against the truth's,
 paired seed by seed, and whether each run's best f is below f(truth) (the optimiser reached the
@@ -15,7 +15,7 @@ objective's level at the truth). Writes ``summary.csv``, ``summary.md`` (the REA
 
 reads the folder's ``runs.csv`` instead and compares two configurations seed by seed (the seeds
 both have): for each error, the ray error and the held-out RMSE, the medians, in how many seeds
-A is lower than B and the paired two-sided Wilcoxon signed-rank p (bench.stats.compare). The held-out
+A is lower than B and the paired two-sided Wilcoxon signed-rank p (bench.report.stats.compare). The held-out
 drive of data seed s is the same camera on an independent ~928 m drive
 (bench/problems/synthetic.py); it is evaluated here, once per seed, for every configuration's
 calibration and the reference in one batch.

@@ -20,7 +20,7 @@ configuration with variables frozen at the reference or tied (fy = fx) searches 
 subspace ``x = A y + c`` (read off its calibration space), whose minimum is
 ``y* = -(A^T H A)^-1 A^T (gbar + eps + H (c' - x_t))`` (c' the subspace point nearest the
 origin of y). Drawing eps gives the minimiser's distribution per camera, turned into the study's
-calibration errors (avio.calibration_error) against that seed's truth, and, by drawing one run
+calibration errors (avio.calibration) against that seed's truth, and, by drawing one run
 per seed and taking the median over the seeds, the distribution of the study's median.
 
     python studies/identifiability/information_bound.py [--seeds 0 1 2 3 4] [--drives 16] [--predict-seeds 0..9]

@@ -16,7 +16,7 @@
    their *_rotation variants, which calibrate the rotation alone):
    how far each optimiser's best rotation lies from the rectified KITTI extrinsic (the local
    space's rotation vector is the offset from it), under each objective, and its ray error
-   against the rectified KITTI calibration (avio.calibration_error.ray_error_deg); then how far
+   against the rectified KITTI calibration (avio.calibration.ray_error_deg); then how far
    the rectified extrinsic itself lies from the orientation the tracks imply against the ground
    truth's calibration chain, and the rotation-only likelihood from that
    (studies/data_checks/check_kitti_extrinsic.py, PnP, frames 15-153).
