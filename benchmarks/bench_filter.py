@@ -248,7 +248,8 @@ def speed(args, config: FilterConfig) -> None:
     if "scaling" not in args.skip:
         _scaling(args, config)
     if "harness" not in args.skip:
-        _, done = _subprocess_s([sys.executable, str(REPO / "benchmarks" / "bench_harness.py"), "--repeats", str(args.repeats)])
+        harness = REPO / "benchmarks" / "bench_harness.py"
+        _, done = _subprocess_s([sys.executable, str(harness), "--repeats", str(args.repeats)])
         print(f"harness overhead (benchmarks/bench_harness.py): {done.stdout.strip().splitlines()[-1]}", flush=True)
     if "job" not in args.skip:
         walls = []

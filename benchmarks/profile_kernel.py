@@ -91,12 +91,13 @@ def patch_kernels(src: str) -> str:
     """avio/filter/kernels.py: run_filters takes ``rep`` and passes it to the update; the state
     prediction wrapped, the covariance prediction and the slide run again on scratch copies."""
     at = "avio/filter/kernels.py"
-    src = _replace(src, "                out_nll, out_slots, out_used):", "                out_nll, out_slots, out_used, rep):",
-                   at)
+    src = _replace(src, "                out_nll, out_slots, out_used):",
+                   "                out_nll, out_slots, out_used, rep):", at)
     src = _replace(src, "chi2_threshold, ws, mws, nws, ows, record, decided)\n",
                    "chi2_threshold, ws, mws, nws, ows, record, decided, rep)\n", at)
     src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n",
-                   "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
+                   "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n"
+                   "    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
                    "    cps, cRs = np.empty((2, 3)), np.empty((2, 3, 3))\n", at)
     src = _wrap(src, "                propagate_one(", "                propagate_covariance(P, Phi", 7, at)
     src = _replace(src, "                propagate_covariance(P, Phi, Qd[k], Tq, U)\n",

@@ -8,8 +8,8 @@ Also the ray error (avio.calibration.ray_error_deg: the largest angle between th
 rays of the same pixels under the calibration and the truth), which a principal-point error and
 the rotation that compensates it do not add up in, and the held-out RMSE against the truth's,
 paired seed by seed, and whether each run's best f is below f(truth) (the optimiser reached the
-objective's level at the truth). Writes ``summary.csv``, ``summary.md`` (the README's table),
-``summary.png`` and ``runs.csv`` into the folder.
+objective's level at the truth). Writes ``summary.csv``, ``summary.md`` (the table of
+studies/identifiability/README.md), ``summary.png`` and ``runs.csv`` into the folder.
 
     python studies/identifiability/identifiability.py results/identifiability --compare CONFIG_A CONFIG_B
 
@@ -142,7 +142,7 @@ def ordered(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def markdown(summary: pd.DataFrame) -> str:
-    """The summary (:func:`summarise`, in its order) as the README's Markdown table."""
+    """The summary (:func:`summarise`, in its order) as the Markdown table of studies/identifiability/README.md."""
     lines = ["| objective | drives | free | evaluations | seeds | rotation (deg) | focal (px) | principal point (px) | "
              "lever arm (cm) | ray error (deg) | held-out RMSE (m) | held-out − truth, paired (m) | held-out better "
              "than reference / than truth | best f below f(truth) |", "|" + "---|" * 14]

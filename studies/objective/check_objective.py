@@ -148,7 +148,8 @@ def _print_ranking(f: list, rays: np.ndarray) -> None:
 def identifiability_summary() -> None:
     path = ROOT / "results" / "identifiability" / "summary.csv"
     if not path.is_file():
-        print(f"4. {path.relative_to(ROOT)} not found (make it with bash studies/identifiability/make_identifiability.sh)")
+        print(f"4. {path.relative_to(ROOT)} not found "
+              f"(make it with bash studies/identifiability/make_identifiability.sh)")
         return
     import pandas as pd
 

@@ -13,7 +13,7 @@ and prints the mean slope over the drives (+- SE, t) of:
   decisions).
 
 A log det part that is the same on every kind of data and a NIS part that balances it only
-with some noise sources say where the tilt comes from (README: "The likelihood has one small
+with some noise sources say where the tilt comes from (studies/objective/README.md: "The likelihood has one small
 deterministic tilt, along fy").
 
     python studies/objective/likelihood_tilt.py [--noise default|pixel|imu|none] [--drives 16] [--var fy]
