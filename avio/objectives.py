@@ -18,7 +18,7 @@
   0.9999 quantile instead of the gate's 0.99 was tried against the likelihood's one significant
   slope at the truth, along fy: unchanged, +3.83e-6 against +3.89e-6 nats per residual and
   pixel, t = 15.7 / 16.7 over 80 drives, while the other slopes' errors grew 2-3x as outliers
-  weighed more: scripts/objective_bias.py with the cap as a filter override.) The objective is
+  weighed more: studies/objective/objective_bias.py with the cap as a filter override.) The objective is
   ``sum_k sum_f l_f / sum_k slots_k`` (dimensionless; per residual, so drives and batches of
   any length compare). Only frames with image motion are scored, for
   every filter alike (:func:`scored_frames`: the median motion of the triplet's features from

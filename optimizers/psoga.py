@@ -41,7 +41,7 @@ class PsoGa(AskTell):
       reaches 54 on rastrigin at 1,000). The patience rule (20 iterations) never fired by 1,000
       evaluations; by 5,000 it stopped 2/10 rastrigin runs stuck in a local minimum, none on
       sphere/rosenbrock, and the medians equal those without a stop rule
-      (``python scripts/bench_optimizers.py --stop-rules [--evals 5000]``). Hence not the default.
+      (``python benchmarks/bench_optimizers.py --stop-rules [--evals 5000]``). Hence not the default.
     - ``"none"``: never stops on its own (fixed-budget benchmarks).
 
     Hyperparameters: pop_size (particles), w (inertia), c1/c2 (cognitive/social

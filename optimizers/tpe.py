@@ -16,7 +16,7 @@ class Tpe(AskTell):
     them means the later trials of a batch are proposed without their siblings' values
     (optuna's ``constant_liar`` imputes pending trials as bad to spread them out). Measured on
     the 10-D analytic problems at 1,000 evaluations, 5 seeds (``python
-    scripts/bench_optimizers.py --tpe-batches --seeds 5``), median best f for batch 1 vs 8:
+    benchmarks/bench_optimizers.py --tpe-batches --seeds 5``), median best f for batch 1 vs 8:
     sphere 0.30 vs 0.27, rastrigin 42 vs 27, rosenbrock 3.8 vs 4.6 — no systematic loss. So
     the default is 8: the VIO objective evaluates a batch in one vectorised run, which batch 1
     would waste. Cost: ~9 s of TPE overhead per 1,000-trial run (the model is refitted on

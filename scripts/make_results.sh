@@ -8,7 +8,7 @@
 # The *_nll entries ask where the innovation likelihood's optimum lies on the all-real data, so they
 # run until CMA-ES converges (3,000 / 6,000 evaluations: at 300 / 600 its seeds still ended at
 # different points); the RMSE entries compare the optimisers at the paper-like fixed budget.
-# The identifiability study has its own script (scripts/make_identifiability.sh).
+# The identifiability study has its own script (studies/identifiability/make_identifiability.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 names=("${@:-synthetic kitti00 kitti00_tracks euroc kitti00_tracks_nll euroc_nll kitti00_tracks_rotation kitti00_tracks_nll_rotation}")

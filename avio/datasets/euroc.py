@@ -33,7 +33,7 @@ What the loader does, and why:
   over the window's initial standstill (ground-truth speed below ``standstill_speed_mps`` for at
   least ``min_standstill_s``; an error for a window that starts in flight): what a user without
   motion capture would do. Over the 5 s standstill of this recording the two differ by
-  1.2 mrad/s (mostly about z), and the filter at Kalibr (scripts/check_euroc.py, median of 5
+  1.2 mrad/s (mostly about z), and the filter at Kalibr (studies/data_checks/check_euroc.py, median of 5
   feature draws) is better from the ground truth: position RMSE 0.080 against 0.100 m over
   0-30 s, 0.078 against 0.104 m over 0-20 s, attitude RMSE 0.42 against 1.00 deg over 0-30 s;
   hence the default. The accelerometer bias defaults to zero

@@ -6,7 +6,7 @@ preintegration, feature selection, process noise) is numpy, once per sequence
 (:func:`prepare`); the filters themselves run in one compiled numba kernel
 (avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
 the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
-(pure numpy reached ~20 evaluations/s at batch 64, see scripts/bench_filter.py for the kernel's).
+(pure numpy reached ~20 evaluations/s at batch 64, see benchmarks/bench_filter.py for the kernel's).
 The batch is split over threads (:func:`set_threads`: contiguous ranges of calibrations, the
 kernel releases the GIL) and each filter is computed by one thread with the same operations as alone, so a
 batch gives the same bits as single runs whatever its size and the thread count; no fastmath,
@@ -117,7 +117,7 @@ def threads() -> int:
 
 
 #: Measured first-run compile time of the kernel on the 2-core development machine, seconds
-#: (scripts/bench_filter.py speed prints it), quoted in the message before a cold compile.
+#: (benchmarks/bench_filter.py speed prints it), quoted in the message before a cold compile.
 COMPILE_ESTIMATE_S = 40
 _HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
 _kernel_loaded = False
@@ -281,7 +281,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per
     # filter, taken as threads come free, since filters that diverge early stop early: on a
     # default job's batches four ranges per thread idled a thread for ~10 % of the time
-    # (`python scripts/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
+    # (`python benchmarks/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.

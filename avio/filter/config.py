@@ -40,7 +40,7 @@ class FilterConfig:
 
     outlier_rejection: "both" (default), "ransac", "mahalanobis" or "none". "both" runs the
         1-point RANSAC and then the chi-square gate on its inliers. Measured with
-        ``scripts/bench_filter.py outliers`` (truth calibration, seeds 0-4, position RMSE
+        ``benchmarks/bench_filter.py outliers`` (truth calibration, seeds 0-4, position RMSE
         mean / max): kitti00 15-796 both 3.61 / 4.09 m, mahalanobis 3.62 / 4.08, ransac
         6.99 / 8.61, none 7.72 / 9.83; simulated 540 m city drive (5 % outliers) both
         2.13 / 3.12 m, mahalanobis 2.12 / 3.20, ransac 4.08 / 12.6, none 225 / 474. RANSAC
@@ -53,7 +53,7 @@ class FilterConfig:
         sequence's reference calibration used (once per sequence and config, cached with
         :func:`prepare`'s inputs) are the only candidates of every filter, which then rejects
         nothing itself (features it cannot linearise still drop out). Own decisions jump with
-        the calibration, and with them the objective (scripts/line_scan.py: 5e-4 nats per
+        the calibration, and with them the objective (studies/identifiability/line_scan.py: 5e-4 nats per
         residual where 16 of ~45,000 decisions change); imposed ones do not. The likelihood
         then scores only those candidates (the valid features of avio/objectives.py).
         "reference_all": the same, and the transfer-gain and baseline checks
@@ -62,7 +62,7 @@ class FilterConfig:
         (its R_f grows with the gain, so its weight fades instead of jumping); only non-finite
         linearisations still drop features per filter. With "reference" those checks stay per
         filter and left jumps of ~4e-4 nats per residual along dx where 15-30 features crossed
-        them (scripts/line_scan.py --along dx).
+        them (studies/identifiability/line_scan.py --along dx).
     rk4_max_step_s: longest RK4 sub-step of the once-per-sequence IMU integration, seconds.
     max_update_features: features per update (16: kitti00 15-796 and the simulated 540 m drive
         gave the same median RMSE with 12 and 16, worse with 10 and 24), chosen by bucketing

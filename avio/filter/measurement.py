@@ -208,8 +208,8 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
     measurements are ``z = 0`` with ``h`` the Sampson distance; the transfer is ``z = m3``.
     Pair 2–3 is chained to camera 1: ``psi23 = psi13 - R23^T psi12``,
     ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``. ``pair23=False`` skips r1 (row 1 of r, J
-    and G are zero): the filter's update does not use it (avio/_kernels.py, USED_RESIDUALS);
-    skipping it made the whole filter 8 % cheaper (README, Benchmarks).
+    and G are zero): the filter's update does not use it (avio/filter/update.py, USED_RESIDUALS);
+    skipping it made the whole filter 8 % cheaper (benchmarks/README.md: the Sampson A/B).
     """
     ifx, ify = 1.0 / fx, 1.0 / fy
     x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)

@@ -60,7 +60,7 @@ class SimConfig:
         max_features: features per triplet (bucketing), None for all.
     pixel_noise_per_triplet: the pixel noise drawn afresh for every triplet instead of once per
         observation (avio.camera_sim.simulate_tracks: overlapping triplets then share no noise;
-        a diagnostic of the filter's independence assumption, scripts/likelihood_tilt.py).
+        a diagnostic of the filter's independence assumption, studies/objective/likelihood_tilt.py).
     time_offset_s: the truth camera's clock offset (frame stamped t exposed at IMU time t + offset).
     calibration_error: "realistic" (drawn from the seed: N(0, sizes[0]) px on fx, fy,
         N(0, sizes[1]) px on cx, cy, a rotation of sizes[2] degrees about a random axis and a

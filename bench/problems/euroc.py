@@ -21,7 +21,7 @@ the trusted reference.
   to 12-1500 times its white-noise variance, so the IMU test never passes and 5 s go without a
   zero-velocity update: 0.33 m instead of 0.08 m over 0-30 s); the initial gyro bias from the
   ground truth at the window start (``gyro_bias_init``; from zero the filter diverges).
-  Figures: scripts/check_euroc.py.
+  Figures: studies/data_checks/check_euroc.py.
 """
 
 from __future__ import annotations

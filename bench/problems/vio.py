@@ -330,7 +330,7 @@ class VioProblem:
 
     def score_results(self, results: list, drives: tuple[Sequence, ...]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """:meth:`score` from the FilterResults (one per drive, in order) of runs already made
-        (for callers that also read the results, e.g. scripts/line_scan.py's decision counts)."""
+        (for callers that also read the results, e.g. studies/identifiability/line_scan.py's decision counts)."""
         truths = [s.truth for s in drives]
         penalty = self.divergence_penalty_m
         rmse = pooled_position_rmse(results, truths, penalty)

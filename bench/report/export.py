@@ -14,7 +14,7 @@ calibration drive or the held-out drive, and writes into DIR (default ``JOB_DIR/
 
 The pose is ``T_world_imu`` (``avio.export``). It prints the files and the VIO's position RMSE
 against the truth, which evo's APE (translation part, no alignment) reproduces on those files
-(``scripts/check_evo.py``). Bad input (no record, a record that is not a finished VIO job, a
+(``studies/data_checks/check_evo.py``). Bad input (no record, a record that is not a finished VIO job, a
 truth the problem does not know) ends with one message and exit code 2 before any work.
 """
 

@@ -1,6 +1,6 @@
 """FilterConfig.outlier_decisions: the updates' decisions taken from a filter at the reference
 calibration and imposed on every filter of the batch, so that they do not jump with the
-calibration (README: "Where the runs end instead")."""
+calibration (studies/identifiability/README.md: "Where the runs end instead")."""
 
 from __future__ import annotations
 

@@ -143,7 +143,7 @@ def test_evo_ape_equals_our_position_rmse(sweep):
     pytest.importorskip("evo")
     job, _ = first_record(sweep)
     repo = Path(__file__).resolve().parents[3]
-    done = subprocess.run([sys.executable, str(repo / "scripts" / "check_evo.py"), str(job)],
+    done = subprocess.run([sys.executable, str(repo / "studies" / "data_checks" / "check_evo.py"), str(job)],
                           capture_output=True, text=True, timeout=300, cwd=repo)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "(agree)" in done.stdout

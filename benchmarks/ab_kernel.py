@@ -1,0 +1,147 @@
+"""The filter kernel of the working tree against the one of another commit, timed side by side
+in one process, and whether they give the same bits (issue 13's A/B of a kernel change).
+
+    python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
+
+Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
+evaluation), so two benchmark runs one after the other can differ by 50 % with the same code.
+The script extracts ``avio/`` of ``--base`` (git archive) into a temporary folder as package
+``avio_base`` (its imports rewritten, in every subpackage), compiles it once (kept in that folder, reused by the next
+run for the same commit) and then times one batch of each kernel per pair, in a new random
+order each pair, on kitti00 frames 15–796. It prints the median time per evaluation of each,
+the median and quartiles of the per-pair ratios (base / working tree: above 1 means the working
+tree is faster) and whether the two gave the same positions, velocities, sigmas and innovation
+statistics to the bit.
+
+The base commit may predate the package layout of e67dede (the kernel in avio/_kernels.py, the
+filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's layout is read
+from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import io
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+_IMPORT = re.compile(r"^(\s*)(from|import) avio\b", re.MULTILINE)
+
+
+def extract_base(commit: str) -> Path:
+    """avio/ of ``commit`` as package avio_base in <tmp>/avio_ab_<sha>/ (made once per commit)."""
+    sha = subprocess.run(["git", "rev-parse", commit], cwd=REPO, check=True, capture_output=True,
+                         text=True).stdout.strip()
+    root = Path(tempfile.gettempdir()) / f"avio_ab_{sha[:12]}"
+    pkg = root / "avio_base"
+    done = root / "avio_base.rewritten"  # a folder left half-made (or by an older version of this script) is redone
+    if not done.is_file():
+        shutil.rmtree(root, ignore_errors=True)
+        blob = subprocess.run(["git", "archive", sha, "avio"], cwd=REPO, check=True, capture_output=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(blob)) as tar:
+            tar.extractall(root / "_x", filter="data")
+        (root / "_x" / "avio").rename(pkg)
+        for path in pkg.rglob("*.py"):
+            path.write_text(_IMPORT.sub(r"\1\2 avio_base", path.read_text()))
+        done.write_text(sha + "\n")
+    return root
+
+
+def module_names(name: str, pkg: Path) -> dict[str, str]:
+    """The modules ab_kernel uses, in package ``name`` at folder ``pkg``, by its layout: from
+    e67dede on the loaders live in avio/datasets/ and Calibration in avio/calibration.py (the
+    filter, avio/filter/, a package exporting the same names); before, avio/kitti00.py and
+    avio/sequence.py (avio/filter.py a module)."""
+    grouped = (pkg / "datasets" / "kitti00.py").is_file()
+    return {"filter": f"{name}.filter", "geometry": f"{name}.geometry",
+            "kitti00": f"{name}.datasets.kitti00" if grouped else f"{name}.kitti00",
+            "calibration": f"{name}.calibration" if (pkg / "calibration.py").is_file() else f"{name}.sequence"}
+
+
+def _load(name: str, data: Path, n: int):
+    """(filter module, sequence, preparation, calibrations) of package ``name``."""
+    names = module_names(name, Path(importlib.import_module(name).__file__).parent)
+    filt = importlib.import_module(names["filter"])
+    kitti = importlib.import_module(names["kitti00"])
+    geometry = importlib.import_module(names["geometry"])
+    calibration = importlib.import_module(names["calibration"])
+    seq = kitti.load_kitti00(data / "kitti00", 15, 796, seed=0)
+    cfg = filt.FilterConfig()
+    prep = filt.prepare(seq, cfg)
+    rng = np.random.default_rng(n)  # bench_filter.py's _candidates, with this package's classes
+    out = seq.truth_calibration.repeat(n)
+    cals = calibration.Calibration(
+        fx_px=out.fx_px + rng.normal(0, 5, n), fy_px=out.fy_px + rng.normal(0, 5, n),
+        cx_px=out.cx_px + rng.normal(0, 5, n), cy_px=out.cy_px + rng.normal(0, 5, n),
+        R_cam_imu=geometry.so3_exp(rng.normal(0, 0.01, (n, 3))) @ out.R_cam_imu,
+        p_imu_cam_m=out.p_imu_cam_m + rng.normal(0, 0.05, (n, 3)), time_offset_s=np.zeros(n))
+    return filt, seq, cfg, prep, cals
+
+
+_COMPARED = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "sigma", "b_a_mps2", "b_g_radps", "nis",
+             "log_det_S", "dof", "nll", "nll_slots", "n_updates", "n_outliers", "diverged_at_frame")
+
+
+def same_bits(a, b) -> bool:
+    """Every array of the two FilterResults equal to the bit (NaN where NaN)."""
+    for name in _COMPARED:
+        x, y = getattr(a, name), getattr(b, name)
+        if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y, equal_nan=True)):
+            return False
+    return True
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--base", default="HEAD")
+    ap.add_argument("--pairs", type=int, default=15)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--data", default=os.environ.get("AVIO_DATA", str(REPO.parent / "shared" / "data")))
+    args = ap.parse_args(argv)
+    data = Path(args.data)
+    if not (data / "kitti00").is_dir():
+        print(f"ab_kernel: no KITTI 00 data at {data / 'kitti00'} (--data or AVIO_DATA)", file=sys.stderr)
+        raise SystemExit(2)
+    sys.path.insert(0, str(extract_base(args.base)))
+    runs = {}
+    for label, name in (("base", "avio_base"), ("tree", "avio")):
+        filt, seq, cfg, prep, cals = _load(name, data, args.batch)
+        filt.set_threads(args.threads)
+        t = time.perf_counter()
+        first = filt.run(seq, cals, cfg, prep)
+        print(f"{label}: {name} from {Path(filt.__file__).parent}, first call {time.perf_counter() - t:.1f} s",
+              flush=True)
+        runs[label] = (filt, seq, cals, cfg, prep, first)
+    same = same_bits(runs["base"][5], runs["tree"][5])
+    rng = np.random.default_rng(0)
+    ms = {"base": [], "tree": []}
+    for _ in range(args.pairs):
+        for label in rng.permutation(["base", "tree"]):
+            filt, seq, cals, cfg, prep, _first = runs[label]
+            t = time.perf_counter()
+            filt.run(seq, cals, cfg, prep)
+            ms[label].append(1e3 * (time.perf_counter() - t) / args.batch)
+    ratio = np.asarray(ms["base"]) / np.asarray(ms["tree"])
+    q1, q2, q3 = np.percentile(ratio, [25, 50, 75])
+    print(f"kitti00 15-796, batch {args.batch}, {args.threads} thread(s), {args.pairs} pairs: base "
+          f"{np.median(ms['base']):.2f} ms, working tree {np.median(ms['tree']):.2f} ms per evaluation (medians)")
+    print(f"speed-up base/tree: median {q2:.3f}x (quartiles {q1:.3f}-{q3:.3f}); same bits: {same}")
+
+
+if __name__ == "__main__":
+    main()

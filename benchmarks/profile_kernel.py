@@ -1,0 +1,196 @@
+"""Where the filter kernel's time goes: the cost of each phase of a frame, measured by running
+that phase twice (issue 13's side-by-side profile).
+
+    python benchmarks/profile_kernel.py [--batch 16] [--rounds 7] [--data ../shared/data]
+
+Why this way: numba's compiled code carries no symbols that ``perf`` can resolve, and timers
+cannot be called inside a nopython kernel. So the script copies ``avio/`` into a temporary
+folder, wraps each phase of the kernel (the update in avio/filter/update.py, the prediction and
+the slide in avio/filter/kernels.py) in ``for _q in range(rep[i])`` (``rep`` a new argument,
+passed down from avio/filter/batch.py; all ones = the unchanged kernel), compiles that copy once (empty NUMBA_CACHE_DIR,
+~40 s) and times the kitti00 15-796 batch with one phase doubled at a time, all variants
+interleaved: every round runs them in a new random order, each right after a baseline run. The
+cost of a phase is the median over the rounds of its time minus that of the baseline run just
+before it. Phases that change the state cannot simply
+run twice: the covariance prediction and the window slide run once more on a scratch copy
+(the copy, 729 numbers, is counted with them), the downdate runs -K, +K, -K (three times:
+half the difference is its cost). Results of the doubled runs are not used.
+
+The edits are anchored on the kernel's source text; when the kernel changes, an anchor that is
+no longer found is an error naming it and its file (update PATCHES below).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PHASES = ("measurement (residuals, Jacobians)", "C P, Sigma = C P C^T", "feature innovations (B, S_j, z_j)",
+          "1-point RANSAC", "information sum (whitening, A, beta)", "gain K = P C^T X", "covariance downdate",
+          "state prediction", "covariance prediction", "window slide", "NIS / log det S / NLL statistics",
+          "residual rows, finiteness, noise model R_f", "(I + A Sigma)^-1 [A | beta] solve")
+
+
+def _indent(block: str, by: str = "    ") -> str:
+    return "".join(by + line + "\n" if line else "\n" for line in block.rstrip("\n").split("\n"))
+
+
+def _wrap(src: str, start: str, end: str, i: int, where: str = "avio/filter/update.py") -> str:
+    """Wrap the lines from anchor ``start`` up to anchor ``end`` in ``for _q in range(rep[i])``."""
+    a = _find(src, start, where=where)
+    b = _find(src, end, a + 1, where=where)
+    block = src[a:b]
+    head = block[:len(block) - len(block.lstrip(" "))]
+    return src[:a] + f"{head}for _q in range(rep[{i}]):\n" + _indent(block) + src[b:]
+
+
+def _find(src: str, anchor: str, after: int = 0, where: str = "avio/filter/update.py") -> int:
+    at = src.find(anchor, after)
+    if at < 0:
+        raise SystemExit(f"profile_kernel: anchor not found in {where} (the kernel changed; update "
+                         f"benchmarks/profile_kernel.py): {anchor.strip()[:80]!r}")
+    return at
+
+
+def _replace(src: str, old: str, new: str, where: str = "avio/filter/update.py") -> str:
+    _find(src, old, where=where)
+    return src.replace(old, new, 1)
+
+
+def patch_update(src: str) -> str:
+    """avio/filter/update.py with every phase of the update wrapped in a repeat loop (module docstring)."""
+    src = _replace(src, "           record, decided):", "           record, decided, rep):")
+    src = _wrap(src, "    measure(R, p, v, cp0", "    # Without baseline", 0)
+    src = _wrap(src, "    matmul(C, Pi, CP)\n", "    for f in range(F):\n        inl[f] = ok[f]", 1)
+    src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py)", 2)
+    src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
+    src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
+    src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        beta[b] = X[b, d]", 4)
+    src = _wrap(src, "    n_valid = 0\n    gain_limit2", "    # CP = C P (C is", 11)
+    # the solve overwrites the right-hand side X[:, d]: each pass restores it from beta first
+    src = _replace(src, "    matmul(A, Sig, Mx)\n", "    for b in range(d):\n        X[b, d] = beta[b]\n    matmul(A, Sig, Mx)\n")
+    src = _wrap(src, "    for b in range(d):\n        X[b, d] = beta[b]\n", "    log_det_S = log_det_R\n", 12)
+    src = _wrap(src, "    log_det_S = log_det_R\n", "    dof = M * used", 10)
+    src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            K[a, b] = 0.0",
+                "    for a in range(27):\n        for b in range(d):\n            kab = K[a, b]", 5)
+    src = _replace(src, "            kab = K[a, b]\n", "            kab = (-1.0 if _q % 2 == 0 else 1.0) * K[a, b]\n")
+    src = _replace(src, "                Pi[a, c] -= kab * CP[b, c]\n", "                Pi[a, c] += kab * CP[b, c]\n")
+    src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            kab = (-1.0",
+                "    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)", 6)
+    return src
+
+
+def patch_kernels(src: str) -> str:
+    """avio/filter/kernels.py: run_filters takes ``rep`` and passes it to the update; the state
+    prediction wrapped, the covariance prediction and the slide run again on scratch copies."""
+    at = "avio/filter/kernels.py"
+    src = _replace(src, "                out_nll, out_slots, out_used):",
+                   "                out_nll, out_slots, out_used, rep):", at)
+    src = _replace(src, "chi2_threshold, ws, mws, nws, ows, record, decided)\n",
+                   "chi2_threshold, ws, mws, nws, ows, record, decided, rep)\n", at)
+    src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n",
+                   "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n"
+                   "    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
+                   "    cps, cRs = np.empty((2, 3)), np.empty((2, 3, 3))\n", at)
+    src = _wrap(src, "                propagate_one(", "                propagate_covariance(P, Phi", 7, at)
+    src = _replace(src, "                propagate_covariance(P, Phi, Qd[k], Tq, U)\n",
+                   "                for _q in range(rep[8] - 1):\n                    Ps[:] = P\n"
+                   "                    propagate_covariance(Ps, Phi, Qd[k], Tq, U)\n"
+                   "                propagate_covariance(P, Phi, Qd[k], Tq, U)\n", at)
+    src = _replace(src, "            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)\n",
+                   "            for _q in range(rep[9] - 1):\n                Ps2[:] = P\n                cps[:] = cp\n"
+                   "                cRs[:] = cR\n"
+                   "                slide(R_new, p_new, v_new, omega, td[i], cps, cRs, Ps2, R3, p3, Jsh, E, NR)\n"
+                   "            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)\n", at)
+    return src
+
+
+def patch_batch(src: str) -> str:
+    """avio/filter/batch.py: a module-level REP (all ones) passed to every run_filters call."""
+    at = "avio/filter/batch.py"
+    src = _replace(src, "def run(sequence", f"REP = np.ones({len(PHASES)}, np.int64)\n\n\ndef run(sequence", at)
+    return _replace(src, "            out_slots, out_used)\n", "            out_slots, out_used, REP)\n", at)
+
+
+#: file under avio/ -> its patch
+PATCHES = {"filter/update.py": patch_update, "filter/kernels.py": patch_kernels, "filter/batch.py": patch_batch}
+
+
+_TIMING = """import sys, time
+sys.path.insert(0, {tmp!r})
+import numpy as np
+import avio.filter.batch as af
+from avio.datasets.kitti00 import load_kitti00
+from avio.filter import FilterConfig, prepare, run, set_threads
+sys.path.insert(0, {scripts!r})
+from bench_filter import _candidates
+PHASES = {phases!r}
+seq = load_kitti00({data!r}, 15, 796, seed=0)
+cfg = FilterConfig(); prep = prepare(seq, cfg)
+set_threads(1)
+n = {batch}
+cals = _candidates(seq.truth_calibration, n, seed=n)
+t = time.perf_counter(); run(seq, cals, cfg, prep)
+print(f"compiled the patched kernel in {{time.perf_counter() - t:.1f}} s", flush=True)
+def timed(i):
+    af.REP[:] = 1
+    if i >= 0:
+        af.REP[i] = 3 if i == 6 else 2
+    t = time.perf_counter(); run(seq, cals, cfg, prep)
+    return 1e3 * (time.perf_counter() - t) / n
+
+
+# Each round runs the variants in a new random order, each right after a baseline run; a
+# phase's cost is the median over the rounds of (variant - its baseline): the machine's slow
+# drifts cancel in the pairs.
+rng = np.random.default_rng(0)
+diffs, bases = {{i: [] for i in range(len(PHASES))}}, []
+for _ in range({rounds}):
+    for i in rng.permutation(len(PHASES)):
+        b = timed(-1)
+        bases.append(b)
+        diffs[int(i)].append(timed(int(i)) - b)
+base = float(np.median(bases))
+print(f"kitti00 15-796 ({{seq.n_frames}} frames), batch {{n}}, 1 thread, {rounds} rounds: {{base:.2f}} ms per "
+      f"evaluation (median of the {{len(bases)}} baseline runs; quartiles {{np.percentile(bases, 25):.2f}}-"
+      f"{{np.percentile(bases, 75):.2f}})")
+total = 0.0
+for i, name in enumerate(PHASES):
+    ms = float(np.median(diffs[i])) / (2 if i == 6 else 1)
+    total += ms
+    print(f"  {{name:>38}}: {{ms:6.2f}} ms  {{100 * ms / base:5.1f}} %")
+print(f"  {{'sum of the phases':>38}}: {{total:6.2f}} ms  {{100 * total / base:5.1f}} % (the rest: loop, copies, "
+      f"outputs, zero-velocity updates, divergence tests, and the noise of the differences)")
+"""
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=os.environ.get("AVIO_DATA", str(ROOT.parent / "shared" / "data")))
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--rounds", type=int, default=7)
+    args = ap.parse_args(argv)
+    kitti = Path(args.data) / "kitti00"
+    if not kitti.is_dir():
+        print(f"profile_kernel: no KITTI 00 data at {kitti} (--data or AVIO_DATA)", file=sys.stderr)
+        raise SystemExit(2)
+    with tempfile.TemporaryDirectory() as tmp:
+        shutil.copytree(ROOT / "avio", Path(tmp) / "avio", ignore=shutil.ignore_patterns("__pycache__"))
+        for name, patch in PATCHES.items():
+            path = Path(tmp) / "avio" / name
+            path.write_text(patch(path.read_text()))
+        code = _TIMING.format(tmp=tmp, scripts=str(ROOT / "benchmarks"), phases=PHASES, data=str(kitti),
+                              batch=args.batch, rounds=args.rounds)
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        raise SystemExit(subprocess.run([sys.executable, "-c", code], env=env).returncode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# The identifiability study (issue 11): which objective, with how many drives and which variables
+# free, calibrates closest to the truth? CMA-ES (a leader on every VIO problem of the committed
+# sweeps) on `synthetic` in the local space, for each objective x {1, 4 drives} x {10 free,
+# 7 free (fy tied to fx, the lever arm's y and z frozen at the reference)}, plus both objectives
+# with 16 drives and 7 free (does the error keep shrinking as 1/sqrt(drives)?) and with 4 drives
+# and 5 free (the principal point frozen too: it trades against the rotation), and with one drive in
+# four noise realisations, 7 free (same world and trajectory, independent noise: does averaging the
+# noise alone do what four drives do?), seeds 0-4 (the
+# optimiser's seed is also the data seed: five cameras, five noise realisations); and some
+# configurations again with larger budgets (suffix _<N>evals: the 4-drive, 7-free ones, the
+# likelihood's 4-drive, 10-free and 16-drive ones; does CMA-ES's error at the default budget
+# belong to the objective or to the optimiser?), and both objectives' 4-drive, 7-free ones at
+# 1,600 evaluations with seeds 0-9 (suffix _<K>seeds: is the 5-seed median within the seeds'
+# scatter of the targets, and does the likelihood's lead hold?), and those two again with the
+# outlier decisions of a filter at the reference imposed on every calibration (suffix
+# _refdecisions, FilterConfig.outlier_decisions: do the runs end nearer the truth when the
+# objective no longer jumps with the decisions?), and the likelihood's with the reference's
+# transfer-gain and baseline checks imposed too (suffix _refall, outlier_decisions=reference_all:
+# the last per-filter decisions, which left jumps along dx), and the likelihood's own- and
+# reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
+# hold over twenty?). Then the summary table and figure
+# (studies/identifiability/identifiability.py).
+#   bash studies/identifiability/make_identifiability.sh [evals] [configuration ...]
+# With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
+# others kept; without, the whole study is re-made.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+evals=${1:-400}
+shift || true
+out=results/identifiability
+all=()
+for objective in position_rmse innovation_nll; do
+  for drives in one four; do
+    for free in 10 7; do all+=("${objective}_${drives}drive_${free}free"); done
+  done
+done
+all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free position_rmse_fourdrive_5free
+      innovation_nll_fourdrive_5free position_rmse_onedrive_fournoise_7free innovation_nll_onedrive_fournoise_7free
+      innovation_nll_fourdrive_7free_1600evals innovation_nll_fourdrive_7free_3200evals
+      position_rmse_fourdrive_7free_1600evals innovation_nll_fourdrive_10free_1600evals
+      innovation_nll_sixteendrive_7free_1600evals innovation_nll_fourdrive_7free_1600evals_10seeds
+      position_rmse_fourdrive_7free_1600evals_10seeds innovation_nll_fourdrive_7free_refdecisions_1600evals_10seeds
+      position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds innovation_nll_fourdrive_7free_refall_1600evals_10seeds
+      innovation_nll_fourdrive_7free_1600evals_20seeds innovation_nll_fourdrive_7free_refall_1600evals_20seeds
+      position_rmse_fourdrive_7free_1600evals_20seeds)
+if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
+mkdir -p "$out"
+for name in "$@"; do
+  [[ " ${all[*]} " == *" $name "* ]] || { echo "make_identifiability: unknown configuration $name; valid: ${all[*]}" >&2; exit 2; }
+  seeds=5 budget=$evals base=$name
+  if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
+  if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
+  decisions=(); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
+  [[ $base == *_refall ]] && { decisions=('problem.params.filter={outlier_decisions: reference_all}'); base=${base%_refall}; }
+  objective=${base%_*drive_*free}
+  rest=${base#"${objective}_"}
+  case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
+  free=${base##*_}; free=${free%free}
+  noise=1; [[ $rest == *_fournoise_* ]] && noise=4
+  d="[$(printf 'paper_540m,%.0s' $(seq "$n"))]"; d=${d/,]/]}
+  extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
+  [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
+  rm -rf "${out:?}/$name"
+  start=$(date -u +%s)
+  python -m bench problem=synthetic optimizer=cmaes seed="range($seeds)" budget.evals="$budget" report=false \
+    problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
+    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    hydra.sweep.dir="$out/$name"
+  echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
+done
+python studies/identifiability/identifiability.py "$out"

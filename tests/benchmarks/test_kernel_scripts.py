@@ -1,0 +1,63 @@
+"""The kernel's measuring scripts still fit the kernel: benchmarks/profile_kernel.py patches
+avio/filter/{update,kernels,batch}.py by anchors on their source text, benchmarks/ab_kernel.py
+rewrites another commit's avio (either layout: avio/filter/ a package, or before e67dede
+avio/_kernels.py and avio/filter.py) into package avio_base. Both would only fail when someone
+runs them, long after the edit that broke them."""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_every_profile_anchor_is_found_in_the_kernel_and_the_patch_compiles(load_script):
+    prof = load_script("profile_kernel")
+    patched = {name: patch((REPO / "avio" / name).read_text()) for name, patch in prof.PATCHES.items()}
+    for text in patched.values():
+        ast.parse(text)  # valid Python
+    kernel = patched["filter/update.py"] + patched["filter/kernels.py"]
+    for i in range(len(prof.PHASES)):
+        assert f"range(rep[{i}])" in kernel or f"range(rep[{i}] - 1)" in kernel, prof.PHASES[i]
+    assert "REP = np.ones" in patched["filter/batch.py"]
+
+
+def test_a_changed_kernel_is_a_clear_error_naming_the_anchor(load_script):
+    prof = load_script("profile_kernel")
+    with pytest.raises(SystemExit, match="anchor not found"):
+        prof.patch_kernels("def nothing():\n    pass\n")
+
+
+def test_the_base_package_imports_only_itself(tmp_path, monkeypatch, load_script):
+    if subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True).returncode != 0:
+        pytest.skip("not a git checkout")
+    ab = load_script("ab_kernel")
+    monkeypatch.setattr(ab.tempfile, "gettempdir", lambda: str(tmp_path))
+    layouts = [("HEAD", "filter/kernels.py", "from avio_base.filter._linalg import", "avio_base.datasets.kitti00")]
+    # a base from before the package layout (e67dede): the kernel in avio/_kernels.py, the filter in avio/filter.py
+    if subprocess.run(["git", "cat-file", "-e", "c320580^{commit}"], cwd=REPO, capture_output=True).returncode == 0:
+        layouts.append(("c320580", "_kernels.py", "from avio_base._linalg import", "avio_base.kitti00"))
+    for commit, kernel, imports, kitti in layouts:
+        pkg = ab.extract_base(commit) / "avio_base"
+        sources = {p.relative_to(pkg).as_posix(): p.read_text() for p in pkg.rglob("*.py")}
+        assert kernel in sources and ("filter.py" in sources or "filter/batch.py" in sources), commit
+        for name, text in sources.items():
+            assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), (commit, name)
+        assert imports in sources[kernel], commit
+        assert ab.module_names("avio_base", pkg)["kitti00"] == kitti, commit
+    assert ab.module_names("avio", REPO / "avio")["kitti00"] == "avio.datasets.kitti00"
+
+
+def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, capsys):
+    """benchmarks/bench_layout.py's variants compute what the kernel computes (else its ratios
+    compare different work)."""
+    layout = load_script("bench_layout")
+    layout.main(["--lanes", "4", "--runtime-lanes", "8", "--repeats", "1", "--calls", "16"])
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "us/filter" in ln]
+    assert [ln.split()[0] for ln in lines] == ["committed", "rows", "lanes", "lanes"]
+    assert all("bit-identical=True" in ln for ln in lines), lines
