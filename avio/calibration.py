@@ -33,11 +33,13 @@ class CalibrationError(AvioError):
 class Calibration:
     """Camera intrinsics and camera–IMU extrinsics of ``n`` candidate calibrations.
 
-    fx_px, fy_px, cx_px, cy_px: (n,) pinhole intrinsics in pixels (skew 0, Eq. 8).
-    R_cam_imu: (n, 3, 3) maps IMU-frame vectors into the camera frame (Eq. 9).
-    p_imu_cam_m: (n, 3) camera origin expressed in the IMU frame, metres (Eq. 10).
+    fx_px, fy_px, cx_px, cy_px: (n,) pinhole intrinsics in pixels (skew 0; the paper's Eq. 8,
+        docs/model.md Eq. 5).
+    R_cam_imu: (n, 3, 3) maps IMU-frame vectors into the camera frame (the paper's Eq. 9 writes it
+        with ZYX Euler angles, docs/model.md Eq. 4; the convention: Eq. 1).
+    p_imu_cam_m: (n, 3) camera origin expressed in the IMU frame, metres (the paper's Eq. 10).
     time_offset_s: (n,) camera clock offset: a frame stamped t was exposed at IMU time
-        ``t + time_offset_s``.
+        ``t + time_offset_s`` (docs/model.md, Eq. 19).
     """
 
     fx_px: np.ndarray
@@ -137,7 +139,8 @@ class CalibrationPerturbation:
 
 
 def calibration_errors(cal: Calibration, truth: Calibration) -> dict[str, np.ndarray]:
-    """(n,) errors of a batch of calibrations against ``truth`` (batch of 1); see the module."""
+    """(n,) errors of a batch of calibrations against ``truth`` (batch of 1); see the module
+    (docs/model.md, Eq. 6)."""
     return {
         "focal_error_px": np.maximum(abs(cal.fx_px - truth.fx_px[0]), abs(cal.fy_px - truth.fy_px[0])),
         "principal_point_error_px": np.maximum(abs(cal.cx_px - truth.cx_px[0]), abs(cal.cy_px - truth.cy_px[0])),

@@ -25,7 +25,7 @@ def so3_log(R: np.ndarray) -> np.ndarray:
 
 def geodesic_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     """Angle of ``R_a^T R_b`` in degrees, (...): the rotation error that does not depend on
-    a parameterisation (PAPER.md §6). ``2 atan2(|vee(R - R^T)|, 1 + tr R)``, the angle of the
+    a parameterisation (docs/model.md, Eqs. 3-4). ``2 atan2(|vee(R - R^T)|, 1 + tr R)``, the angle of the
     quaternion ``(vee(R - R^T), 1 + tr R)``: accurate for small angles (where arccos of the trace
     is not) and the same as ``|so3_log(R)|`` to rounding for rotation matrices (1e-15 relative,
     tested). For matrices orthonormal only to ~1e-7 (KITTI's files print 7 digits) the two differ
@@ -39,7 +39,8 @@ def geodesic_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
 
 
 def euler_zyx_deg_to_matrix(roll_deg, pitch_deg, yaw_deg) -> np.ndarray:
-    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (the paper's Eq. 9), angles in degrees, (...) -> (..., 3, 3)."""
+    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` (the paper's Eq. 9; docs/model.md, Eq. 4), angles in degrees,
+    (...) -> (..., 3, 3)."""
     roll, pitch, yaw = np.broadcast_arrays(
         np.asarray(roll_deg, float), np.asarray(pitch_deg, float), np.asarray(yaw_deg, float)
     )

@@ -1,16 +1,17 @@
-"""Trajectory errors of a batch of filter runs against ground truth (PAPER.md §4–§5).
+"""Trajectory errors of a batch of filter runs against ground truth (docs/model.md, "Objectives and
+metrics", Eqs. 52, 56-57).
 
 Definitions (per filter, over the N frames i = 0..N-1, errors e_i >= 0):
 
 - position error ``e_i = ||p_true,i - p_est,i||`` (m), velocity error
   ``e_i = ||v_true,i - v_est,i||`` (m/s), attitude error the geodesic angle of
-  ``R_true,i^T R_est,i`` (deg);
+  ``R_true,i^T R_est,i`` (deg; Eq. 3);
 - ``rmse = sqrt(mean_i e_i^2)``, ``mean = mean_i e_i``, ``std = sqrt(mean_i (e_i - mean)^2)``
-  (population std over frames) — the RMSE/mean/std columns of the paper's Tables 2–3;
-- the objective of the paper (Eq. 11–12) is the position RMSE;
+  (population std over frames) — the RMSE/mean/std columns of the paper's Tables 2–3 (Eq. 56);
+- the objective of the paper (its Eq. 11–12) is the position RMSE (Eq. 52);
 - drift (``drift_metrics``): the KITTI odometry benchmark's relative-pose error over path
   segments, ``t_rel`` (%) and ``r_rel`` (deg/100 m) over 100–800 m, per-metre drift (also for
-  drives under 100 m) and the largest one-frame position jump error.
+  drives under 100 m) and the largest one-frame position jump error (Eq. 57).
 
 All functions are batched over the calibration axis n.
 """
@@ -45,7 +46,8 @@ def _check(result, truth: GroundTruth) -> None:
 
 def pose_errors(result, truth: GroundTruth) -> dict:
     """Per-frame errors ``*_errors`` (n, N) and ``*_rmse``, ``*_mean``, ``*_std`` (n,) for
-    ``position`` (m), ``velocity`` (m/s) and ``attitude`` (deg); see the module docstring."""
+    ``position`` (m), ``velocity`` (m/s) and ``attitude`` (deg); see the module docstring
+    (docs/model.md, Eq. 56)."""
     _check(result, truth)
     e_p = np.linalg.norm(result.p_world_imu_m - truth.p_world_imu_m[None], axis=-1)
     e_v = np.linalg.norm(result.v_world_imu_mps - truth.v_world_imu_mps[None], axis=-1)
@@ -57,7 +59,8 @@ def pose_errors(result, truth: GroundTruth) -> dict:
 
 
 def position_rmse_objective(result, truth: GroundTruth, divergence_penalty_m: float = 1000.0) -> np.ndarray:
-    """(n,) the paper's cost (Eq. 11–12): ``sqrt(mean_i ||p_true,i - p_VIO,i||^2)``, metres.
+    """(n,) the paper's cost (its Eq. 11–12; docs/model.md, Eq. 52): ``sqrt(mean_i ||p_true,i -
+    p_VIO,i||^2)``, metres.
 
     A diverged filter gets ``divergence_penalty_m * (2 - k_div / N)`` (k_div its divergence
     frame): finite, worse than any non-diverged value below the penalty, and worse the earlier
@@ -66,6 +69,7 @@ def position_rmse_objective(result, truth: GroundTruth, divergence_penalty_m: fl
     """
     _check(result, truth)
     N = truth.p_world_imu_m.shape[0]
+    # Eq. (52): the RMSE, or the divergence penalty.
     e2 = np.sum((result.p_world_imu_m - truth.p_world_imu_m[None]) ** 2, axis=-1)
     f = np.sqrt(np.mean(e2, axis=1))
     penalty = divergence_penalty_m * (2.0 - np.clip(result.diverged_at_frame, 0, N) / N)
@@ -108,7 +112,7 @@ def _segments(p_true: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def _angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """Geodesic angle of ``R_a^T R_b`` (deg), (...): ``atan2(|axis part|, cos part)`` of the
+    """Geodesic angle of ``R_a^T R_b`` (deg), (...) (docs/model.md, Eq. 3): ``atan2(|axis part|, cos part)`` of the
     product, accurate near 0 (where the devkit's ``acos`` of the trace is not) and ~20x faster
     than a scipy Rotation round trip on the many segments of a batch."""
     M = np.einsum("...ji,...jk->...ik", R_a, R_b)
@@ -125,7 +129,7 @@ def drift_metrics(p_est: np.ndarray, R_est: np.ndarray, truth: GroundTruth) -> d
     Over every segment (first, last) of the path (``segment_lengths_m``, starts every 10
     frames), the relative-pose error of the KITTI devkit: with ``D = T_first^-1 T_last`` for the
     estimate and the truth, ``E = D_est^-1 D_true``; translation error ``|t(E)|`` (m) and
-    rotation error ``angle(R(E))`` (deg), each divided by the segment length L.
+    rotation error ``angle(R(E))`` (deg), each divided by the segment length L (docs/model.md, Eq. 57).
 
     - ``t_rel_pct``: mean over the KITTI segments (100–800 m) of ``100 |t(E)| / L`` (%);
       NaN on a drive shorter than 100 m;

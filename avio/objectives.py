@@ -1,13 +1,15 @@
-"""Calibration objectives from batches of filter runs, pooled over one or more drives.
+"""Calibration objectives from batches of filter runs, pooled over one or more drives
+(docs/model.md, "Objectives and metrics", Eqs. 52-55).
 
-- :func:`pooled_position_rmse`: the paper's cost (Eq. 11-12), ``sqrt(mean_i ||p_true,i -
-  p_VIO,i||^2)`` over every frame i of every drive (for one drive exactly
-  avio.metrics.position_rmse_objective), metres.
-- :func:`innovation_nll`: the negative log-likelihood of the filter's innovations, per residual.
+- :func:`pooled_position_rmse`: the paper's cost (its Eq. 11-12; docs/model.md Eqs. 52-53),
+  ``sqrt(mean_i ||p_true,i - p_VIO,i||^2)`` over every frame i of every drive (for one drive
+  exactly avio.metrics.position_rmse_objective), metres.
+- :func:`innovation_nll`: the negative log-likelihood of the filter's innovations, per residual
+  (docs/model.md, Eqs. 46 and 55).
   Every valid feature f of a frame k with a trifocal update contributes, whatever the update
   then does with it (RANSAC, gate), ``l_f = 1/2 (min(d_f^2, chi2_gate) + log det S_f + 3 log 2 pi)``
   with ``d_f^2 = r_f^T S_f^-1 r_f`` the squared Mahalanobis distance of its 3 used residuals
-  (avio._kernels.USED_RESIDUALS) under the filter's prediction, ``S_f = H_f P H_f^T + R_f``: a
+  (avio.filter.update.USED_RESIDUALS) under the filter's prediction, ``S_f = H_f P H_f^T + R_f``: a
   sum of per-feature marginal likelihoods (the features' correlation through P is not used),
   truncated at the gate (robust). A valid feature the filter cannot use (a degenerate transfer,
   non-finite, no baseline) contributes the cap with ``R = sigma^2 I``,
@@ -21,18 +23,18 @@
   weighed more: studies/objective/objective_bias.py with the cap as a filter override.) The objective is
   ``sum_k sum_f l_f / sum_k slots_k`` (dimensionless; per residual, so drives and batches of
   any length compare). Only frames with image motion are scored, for
-  every filter alike (:func:`scored_frames`: the median motion of the triplet's features from
+  every filter alike (:func:`scored_frames`, Eq. 54: the median motion of the triplet's features from
   image 1 to image 3 at least ``NLL_MIN_FLOW_PX``, decided without the calibration):
   standstill frames carry no image information, and in the slow frames around a stop whether
   a filter has enough baseline to update depends on its calibration: scoring them let a lever
   arm at the bounds buy the update of 17 braking frames (744 nats) and win the objective while
   it was worse everywhere else (seed 0: 1.53 per residual, 2.8 deg off, against 1.55 at the
   truth).
-  Computed inside the filter kernel (avio/_kernels.py) as ``FilterResult.nll``,
+  Computed inside the filter kernel (avio/filter/update.py) as ``FilterResult.nll``,
   ``nll_slots``, ``nis``, ``dof``.
 
 A diverged filter gets ``penalty * (2 - k_div / N)`` under either objective (the worst over the
-drives), finite and worse the earlier it diverged.
+drives; Eqs. 52-53), finite and worse the earlier it diverged.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ NLL_MIN_FLOW_PX = 3.0
 
 
 def scored_frames(sequence, min_flow_px: float = NLL_MIN_FLOW_PX) -> np.ndarray:
-    """(N,) bool: the frames :func:`innovation_nll` scores, from the tracks alone."""
+    """(N,) bool: the frames :func:`innovation_nll` scores, from the tracks alone (docs/model.md, Eq. 54)."""
     tr = sequence.tracks
     out = np.zeros(sequence.n_frames, bool)
     flow = np.linalg.norm(tr.uv_px[:, :, 2] - tr.uv_px[:, :, 0], axis=-1)
@@ -61,7 +63,8 @@ def scored_frames(sequence, min_flow_px: float = NLL_MIN_FLOW_PX) -> np.ndarray:
 
 
 def _penalty(results, penalty: float) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) whether any drive diverged, and the penalty of the earliest relative divergence."""
+    """(n,) whether any drive diverged, and the penalty of the earliest relative divergence
+    (docs/model.md, Eq. 53)."""
     diverged = np.any([r.diverged for r in results], axis=0)
     frac = np.min([np.where(r.diverged, np.clip(r.diverged_at_frame, 0, None) / r.p_world_imu_m.shape[1], 1.0)
                    for r in results], axis=0)
@@ -69,12 +72,14 @@ def _penalty(results, penalty: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pooled_position_rmse(results, truths, penalty: float) -> np.ndarray:
-    """(n,) position RMSE over every frame of every drive (results[d] against truths[d]), m."""
+    """(n,) position RMSE over every frame of every drive (results[d] against truths[d]), m
+    (docs/model.md, Eqs. 52-53)."""
     per = [position_rmse_objective(r, t, penalty) for r, t in zip(results, truths)]
     if len(per) == 1:
         return per[0]
     frames = np.array([t.p_world_imu_m.shape[0] for t in truths], float)
     diverged, pen = _penalty(results, penalty)
+    # Eq. (53): pooled over the frames of all drives.
     f = np.sqrt(sum(w * p**2 for w, p in zip(frames, per)) / frames.sum())
     return np.where(diverged | ~np.isfinite(f), np.where(diverged, pen, 2.0 * penalty), f)
 
@@ -82,8 +87,9 @@ def pooled_position_rmse(results, truths, penalty: float) -> np.ndarray:
 def innovation_nll(results, penalty: float, scored=None) -> tuple[np.ndarray, np.ndarray]:
     """(n,) the innovation NLL per residual pooled over the drives (module docstring), and
     (n,) the NIS per degree of freedom of the updates (~1 for a consistent filter).
-    scored: per drive the (N,) :func:`scored_frames` (None: every frame)."""
+    scored: per drive the (N,) :func:`scored_frames` (None: every frame). docs/model.md, Eq. 55."""
     scored = [None] * len(results) if scored is None else scored
+    # Eq. (55): the per-frame nll and slots (Eq. 46) summed over the scored frames of every drive.
     nll = sum(np.where(m, r.nll, 0.0).sum(axis=1) if m is not None else r.nll.sum(axis=1)
               for r, m in zip(results, scored))
     slots = sum(np.where(m, r.nll_slots, 0).sum(axis=1) if m is not None else r.nll_slots.sum(axis=1)

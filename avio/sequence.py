@@ -1,6 +1,6 @@
 """The one sequence model every data source produces and the filter reads.
 
-Frames and directions (see ../shared/PAPER.md §6):
+Frames and directions (docs/model.md, "Conventions", Eq. 1):
 - ``world``: gravity-aligned, z up, fixed to the start of the sequence; gravity is
   ``Sequence.gravity_world_mps2`` (normally (0, 0, -9.81)).
 - ``imu``: body frame of the IMU (KITTI OXTS: x forward, y left, z up).

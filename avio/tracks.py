@@ -1,10 +1,10 @@
 """Feature observations (frame, track, pixel) -> tracks over consecutive frame triplets.
 
-The filter consumes features seen in three consecutive images (PAPER.md §2): for each frame
-k >= 2, every track observed in frames k-2, k-1 and k. Optionally a fixed number of them is
-chosen per triplet by bucketing the image of frame k into a grid and taking features from the
-cells in turn, so that the chosen features spread over the image (the 4x8 bucketing of the
-reference MATLAB implementation).
+The filter consumes features seen in three consecutive images (docs/model.md, "Measurement
+chain"): for each frame k >= 2, every track observed in frames k-2, k-1 and k. Optionally a fixed
+number of them is chosen per triplet by bucketing the image of frame k into a grid and taking
+features from the cells in turn, so that the chosen features spread over the image (the 4x8
+bucketing of the reference MATLAB implementation).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The paper's hybrid PSO–GA (PAPER.md §4, Fig. 4): one PSO step, then one GA step, repeated.
+"""The paper's hybrid PSO–GA (its Fig. 4): one PSO step, then one GA step, repeated.
 
 Search happens in normalised coordinates ``u = (x - lower) / (upper - lower)`` in [0, 1]^d, so
 that velocities, mutation strengths and the stop rule treat every variable alike whatever its

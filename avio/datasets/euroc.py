@@ -17,8 +17,8 @@ What the loader does, and why:
 - Clock: every time is seconds from ``t0_abs`` (the first IMU sample and the first frame);
   IMU, frames and ground truth share the one EuRoC clock, so the time offset is 0.
 - Frames: IMU frame = the ground truth's body frame (gyro against the ground-truth body rate
-  correlates > 0.9 per axis: tests/avio/test_euroc.py). A frame takes the ground-truth row
-  nearest in time (all are within 1 ms; a frame without one is an error).
+  correlates > 0.9 per axis: tests/avio/datasets/test_euroc.py). A frame takes the ground-truth
+  row nearest in time (all are within 1 ms; a frame without one is an error).
 - World: the Vicon world, which is gravity-aligned with z up (the mean specific force over the
   initial standstill, rotated to the world, is +9.81 m/s^2 along +z), shifted so that the IMU
   is at the origin at the window's first frame. Gravity ``(0, 0, -GRAVITY_MPS2)``.
@@ -40,7 +40,7 @@ What the loader does, and why:
   (``accel_bias_init="zero"``): the ground-truth one drifts 0.03 -> 0.20 m/s^2 over the 30 s
   and did not help consistently (data README); ``"ground_truth"`` is available.
 - Nominal for calibration experiments: with ``nominal_perturbation`` (an
-  avio.kitti00.CalibrationPerturbation or its fields) the sequence's reference calibration (the
+  avio.calibration.CalibrationPerturbation or its fields) the sequence's reference calibration (the
   one a user starts from) is Kalibr plus that offset and ``truth_calibration`` is Kalibr: the
   trusted target-based calibration plays the truth, so calibration errors are against Kalibr.
   Without it the reference is Kalibr and the truth unknown (None).

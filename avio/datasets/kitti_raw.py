@@ -9,7 +9,7 @@ Layout (``<date>/`` holds the three calib files and ``<date>_drive_<nnnn>_sync/`
 
 What the loader does:
 - Truth = the OXTS pose and velocity at each synced frame, in a gravity-aligned ENU world
-  (x east, y north, z up; origin at the first packet), see ``avio.oxts``.
+  (x east, y north, z up; origin at the first packet), see ``avio.datasets.oxts``.
 - IMU = the OXTS body specific force (ax, ay, az; gravity included) and rates (wx, wy, wz) of
   the same packets. The *synced* OXTS is 10 Hz only, so this IMU is 10 Hz: usable for tests and
   coarse runs, not a substitute for the 100 Hz ``oxts`` of the unsynced "extract" data.

@@ -1,5 +1,6 @@
 """Small dense linear algebra and rotations compiled with numba (``cache=True``, no fastmath),
-for the per-filter kernels of the VIO filter (avio/_kernels.py, avio/imu_propagation.py).
+for the per-filter kernels of the VIO filter (avio/filter/kernels.py, update.py, measurement.py,
+outliers.py, propagation.py).
 
 Hand-written because the matrices are 3x3 to 27x27: a LAPACK/BLAS call or a numpy call per
 matrix costs more than the arithmetic.
@@ -14,7 +15,7 @@ import numpy as np
 @numba.njit(cache=True, error_model="numpy")
 def so3_exp(w0, w1, w2, out):
     """Rodrigues' formula of the rotation vector (w0, w1, w2) rad into out (3, 3); small
-    angles use the Taylor series ."""
+    angles use the Taylor series (docs/model.md, Eq. 2)."""
     th2 = w0 * w0 + w1 * w1 + w2 * w2
     if th2 < 1e-12:
         a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0

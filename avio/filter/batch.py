@@ -1,70 +1,32 @@
-"""The batched sliding-window trifocal VIO: n error-state Kalman filters in lock-step (PAPER.md §2).
+"""The batched sliding-window trifocal VIO: n error-state Kalman filters in lock-step.
+
+The model (state, prediction, measurement, noise, outliers, update, standstill, slide,
+divergence) is written out with numbered equations in docs/model.md; this module runs it.
 
 One call of :func:`run` runs one filter per candidate calibration over the same IMU and feature
 tracks. Every array carries the calibration axis first. The calibration-independent work (IMU
-preintegration, feature selection, process noise) is numpy, once per sequence
-(:func:`prepare`); the filters themselves run in one compiled numba kernel
-(avio/_kernels.py: run_filters) that loops over calibrations and frames: per filter and frame
-the work is a few 27x27 products and ~16 features, far too small for numpy's per-call cost
-(pure numpy reached ~20 evaluations/s at batch 64, see benchmarks/bench_filter.py for the kernel's).
-The batch is split over threads (:func:`set_threads`: contiguous ranges of calibrations, the
-kernel releases the GIL) and each filter is computed by one thread with the same operations as alone, so a
-batch gives the same bits as single runs whatever its size and the thread count; no fastmath,
-so results are deterministic. The first call of a process with a cold numba cache compiles the
-kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
+preintegration, feature selection, process noise, standstill flags) is numpy, once per sequence
+(:func:`prepare`, avio/filter/prepare.py); the filters themselves run in one compiled numba
+kernel (avio/filter/kernels.py: run_filters) that loops over calibrations and frames: per
+filter and frame the work is a few 27x27 products and ~16 features, far too small for numpy's
+per-call cost (pure numpy reached ~20 evaluations/s at batch 64, see benchmarks/bench_filter.py for
+the kernel's). The batch is split over threads (:func:`set_threads`: contiguous ranges of
+calibrations, the kernel releases the GIL) and each filter is computed by one thread with the
+same operations as alone, so a batch gives the same bits as single runs whatever its size and
+the thread count; no fastmath, so results are deterministic. The first call of a process with a
+cold numba cache compiles the kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
 
-State (nominal): ``p_world_imu`` (m), ``R_world_imu``, ``v_world_imu`` (m/s), accelerometer and
-gyro biases ``b_a`` (m/s^2), ``b_g`` (rad/s), and two clones of the camera-exposure IMU pose of
-frames k-2 and k-1. Error state, 27: ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]``
-with local rotation errors (``R_true = R exp(dtheta)``).
-
-- Initial state: the ground-truth pose and velocity at frame 0, biases from the sequence
-  (``Sequence.initial_*_bias``, zero when unknown); the initial covariance is diagonal with the
-  ``init_sigma_*`` of :class:`FilterConfig`. The filter
-  estimates from frame 0 on; frames before the first complete triplet are IMU propagation only.
-- Prediction: the IMU increments of every frame interval are integrated with RK4 (IMU linearly
-  interpolated at sub-steps of ``rk4_max_step_s``) once per sequence, bias-free, together with
-  their bias Jacobians; each filter applies its own biases to first order (Forster et al. 2017
-  preintegration). Against a per-filter RK4 with biases this differs by ~|b_g T|^2, below 1e-6 m
-  per interval (tests/avio/test_imu_propagation.py) and makes the prediction ~50x cheaper.
-  Covariance: closed-form transition of the interval and the discrete IMU noise
-  (avio/imu_propagation.py), once per frame.
-- Time offset ``td`` (per calibration): frame k was exposed at IMU time ``t_k + td``; its pose is
-  taken to first order, ``(p + v td, R exp((w_m - b_g) td))``, both for the clones and for the
-  current pose in the measurement (with its Jacobian w.r.t. ``dv`` and ``db_g``).
-- Update per frame triplet: 4 pixel residuals per feature (avio/measurement.py) with analytic
-  Jacobians; features chosen once per sequence by 4x8 bucketing of frame k's image
-  (calibration-independent). Each feature's measurement covariance is derived from the pixel
-  noise: ``R_f = pixel_sigma_px^2 G G^T`` with G the residuals' derivative with respect to the six
-  measured pixel coordinates (the two Sampson distances share m2 and are correlated; the
-  transfer amplifies the noise of m1 and m2 by the geometry), so the filter weights each residual
-  by its real uncertainty. That covariance has rank 3 (a point in three images gives three
-  constraints): the update uses the 1-2 Sampson distance and the transfer, whose 3x3
-  covariance is well conditioned, and not the 2-3 Sampson distance, which to first order is
-  their combination (avio._kernels.USED_RESIDUALS). Transfers that amplify the noise more than
-  ``max_transfer_gain`` times are degenerate and not used. Outliers rejected per filter (avio/outliers.py); then the
-  Kalman update in information form, reduced to the 12 relative-pose errors the measurement
-  depends on (avio._kernels.update): a 12x12 solve, never the (4F)x(4F) innovation covariance.
-  Each update also yields its innovation statistics (NIS, log det S, the NLL of
-  avio/objectives.py), at no extra cost in products.
-- Standing still (calibration-free, once per sequence): when both the IMU is still — the
-  variances of every gyro and accelerometer axis over the last ``stationary_imu_window_s``
-  below ``stationary_imu_variance_ratio`` times the white-noise variance the filter assumes —
-  and the median image motion of the triplet's features over two frames is below
-  ``stationary_flow_px`` and incoherent (the two frame steps of a feature do not point the
-  same way: pixel noise, not motion), a zero-velocity pseudo-measurement (``zero_velocity_sigma_mps``)
-  replaces the update. The image test alone fired at 0.3-1.2 m/s while braking and the
-  pseudo-measurement then moved the position by metres; braking shows in the accelerometer
-  (variance ratio 2-8 on the default drive) long after the image motion is below the noise.
-  (Not in the paper; its drives do not stop, the simulated city drive does.)
-- Slide: the oldest clone is dropped and the (time-shifted) current pose is cloned.
-- Divergence: a filter whose state or covariance is non-finite, whose largest covariance
-  diagonal exceeds ``divergence_max_variance`` (default 1e6, i.e. a 1 km standard deviation) or
-  whose speed exceeds ``divergence_max_speed_mps`` (100 m/s) is flagged at that frame and frozen:
-  its estimates (and biases) stay at the last good frame, its ``sigma`` reports the initial
-  standard deviations from then on and its update counts are 0; the others carry on. A
-  calibration with non-finite values is flagged at frame 0 and not run. :func:`avio.metrics.position_rmse_objective` turns a divergence into a
-  finite penalty.
+In short (docs/model.md): nominal state ``p_world_imu``, ``R_world_imu``, ``v_world_imu``,
+``b_a``, ``b_g`` and two clones of the exposure-time IMU pose of frames k-2, k-1; a 27-dim
+error state with local rotation errors (Eqs. 7-8); initial state from the ground truth at frame
+0 (Eq. 9); RK4 preintegration with first-order bias corrections (Eqs. 12-18); time offset to
+first order (Eq. 19); per triplet the 1-2 Sampson distance and the trifocal transfer
+(Eqs. 20-33) with ``R_f = sigma^2 G G^T`` from the pixel noise (Eqs. 34-36), 1-point RANSAC and
+a chi-square gate (Eqs. 37-39), the Kalman update in information form over the 12 relative-pose
+errors (Eqs. 40-43) and its innovation statistics (Eqs. 44-46); zero-velocity updates when the
+IMU and the images both say standing still (Eqs. 47-49); slide (Eq. 50); a diverged filter
+(Eq. 51) is frozen at its last good frame, and :func:`avio.metrics.position_rmse_objective`
+turns a divergence into a finite penalty (Eq. 52).
 """
 
 from __future__ import annotations
@@ -170,8 +132,9 @@ def _announce_compile():
 
 
 class _State:
-    """Initial nominal states and covariances of n filters: truth pose and velocity of frame 0,
-    biases zero, clones at the origin (they are set by the first slides), ``P0`` diagonal."""
+    """Initial nominal states and covariances of n filters (docs/model.md, Eq. 9): truth pose and
+    velocity of frame 0, biases from the sequence (zero when unknown), clones at the origin (they
+    are set by the first slides), ``P0`` diagonal."""
 
     def __init__(self, sequence: Sequence, n: int, config: FilterConfig):
         tr = sequence.truth
@@ -182,6 +145,7 @@ class _State:
         self.bg = np.repeat(_bias(sequence.initial_gyro_bias_radps)[None], n, axis=0)
         self.cp = np.zeros((2, n, 3))  # clones (k-2, k-1): exposure-time IMU positions
         self.cR = np.repeat(np.eye(3)[None, None], 2, 0).repeat(n, 1)
+        # P0: Eq. (9), in the error-state order of Eq. (8).
         c = config
         d = np.r_[[c.init_sigma_p_m] * 3, [c.init_sigma_theta_rad] * 3, [c.init_sigma_v_mps] * 3,
                   [c.init_sigma_ba_mps2] * 3, [c.init_sigma_bg_radps] * 3, [c.init_sigma_p_m] * 3,
@@ -262,7 +226,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     out_p, out_R, out_v = np.empty((n, N, 3)), np.empty((n, N, 3, 3)), np.empty((n, N, 3))
     out_sig, out_ba, out_bg = np.empty((n, N, 15)), np.empty((n, N, 3)), np.empty((n, N, 3))
     n_upd, n_out, div_at = np.zeros((n, N), np.int64), np.zeros((n, N), np.int64), np.empty(n, np.int64)
-    # A calibration with non-finite values is diverged before it starts (frame 0).
+    # A calibration with non-finite values is diverged before it starts (frame 0; Eq. 51).
     frozen = ~np.all(np.isfinite(np.concatenate(
         [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
          cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)

@@ -36,7 +36,7 @@ DECISION_SOURCES = ("own", "reference", "reference_all")
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """Filter settings (units in the names).
+    """Filter settings (units in the names; the equations cited are those of docs/model.md).
 
     outlier_rejection: "both" (default), "ransac", "mahalanobis" or "none". "both" runs the
         1-point RANSAC and then the chi-square gate on its inliers. Measured with
@@ -69,34 +69,35 @@ class FilterConfig:
         frame k's image into ``bucket_grid`` (rows, cols) cells (avio.tracks.bucket_select,
         seeded with ``bucket_seed``; calibration-independent, so once per sequence).
     pixel_sigma_px: the pixel noise of the tracked points (standard deviation per coordinate);
-        the residuals' covariance follows from it (module docstring). 0.7 px is the simulated
+        the residuals' covariance follows from it (docs/model.md, Eq. 35). 0.7 px is the simulated
         cameras' noise; the first implementation's fixed diag(1, 1, 2, 2) px^2 gave NIS/dof 0.73
         and a position NEES of 2-24 at the truth.
     max_transfer_gain: a feature whose transferred point moves more than this many pixels per
         pixel of measurement noise (standard deviations) is a degenerate transfer and is not used;
-        at the true poses inliers stay below ~10, degenerate ones reach thousands.
+        at the true poses inliers stay below ~10, degenerate ones reach thousands (Eq. 36).
     mahalanobis_probability: chi-square gate of one feature (3 degrees of freedom: the residuals
-        the update uses, avio._kernels.USED_RESIDUALS).
+        the update uses, avio.filter.update.USED_RESIDUALS; docs/model.md, Eq. 39).
     ransac_threshold_sigma: a feature is a RANSAC inlier when each residual is within this many
-        measurement standard deviations after the hypothesis' correction.
-    min_parallax_m: no trifocal update when the predicted camera baseline 1-2 or 2-3 is shorter.
+        measurement standard deviations after the hypothesis' correction (Eq. 38).
+    min_parallax_m: no trifocal update when the predicted camera baseline 1-2 or 2-3 is shorter
+        (Eq. 36).
     min_feature_flow_px: features moving less than this between consecutive images are not
         used (0: all are used; dropping them did not help).
     stationary_flow_px, stationary_max_coherence, stationary_imu_window_s,
         stationary_imu_variance_ratio (None: the images alone decide), zero_velocity_sigma_mps:
         standing-still detection and its
-        pseudo-measurement (module docstring); the flow threshold suits pixel noise up to
+        pseudo-measurement (docs/model.md, Eqs. 47-49); the flow threshold suits pixel noise up to
         ~0.7 px; the coherence (median cosine between a feature's two frame steps: about -0.5
         for pixel noise at a standstill, 1 when moving) catches slow motion below the noise.
-    init_sigma_*: initial standard deviations (m, rad, m/s, m/s^2, rad/s); the clones start
+    init_sigma_*: initial standard deviations (m, rad, m/s, m/s^2, rad/s; Eq. 9); the clones start
         with the pose values. The bias ones matter: with 1e-3 rad/s on the gyro bias the
         trifocal updates "learn" a yaw-rate bias that is not there (yaw is unobservable) and
         the heading drifts 1.5-2 deg; 1e-4 rad/s (the order of the sensors' bias) and
         0.02 m/s^2 took the simulated 540 m drive from 3.4 to 2.0 m median RMSE, the 928 m
         one from 8.2 to 2.1 m and kitti00 15-796 from 4.1 to 3.4 m (5 seeds).
-    imu_noise_scale: multiplies the sequence's ImuNoise densities (process noise).
+    imu_noise_scale: multiplies the sequence's ImuNoise densities (process noise, Eq. 17).
     divergence_max_variance, divergence_max_speed_mps: divergence thresholds (m^2 or (m/s)^2
-        or rad^2 on any diagonal entry of the covariance; m/s on the estimated speed).
+        or rad^2 on any diagonal entry of the covariance; m/s on the estimated speed; Eq. 51).
     """
 
     rk4_max_step_s: float = 0.005
@@ -127,7 +128,7 @@ class FilterConfig:
 
     @property
     def chi2_threshold(self) -> float:
-        """Gate on the squared Mahalanobis distance of one feature's used residuals (3 dof)."""
+        """Gate on the squared Mahalanobis distance of one feature's used residuals (3 dof; Eq. 39)."""
         return float(_chi2_ppf(self.mahalanobis_probability, M))
 
     def __post_init__(self) -> None:

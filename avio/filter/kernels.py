@@ -1,22 +1,22 @@
-"""Compiled kernels of the batched VIO filter (avio/filter.py): the whole run of n filters
-(:func:`run_filters`) and its per-filter steps: prediction of the covariance, the trifocal
-update (measurement chain, outlier rejection, Kalman update, injection), the zero-velocity
-update, the window slide and the divergence test.
+"""Compiled kernels of the batched VIO filter (avio/filter/batch.py): the whole run of n filters
+(:func:`run_filters`) and its per-filter steps: prediction of the covariance, the zero-velocity
+update, the window slide and the divergence test; the trifocal update (measurement chain,
+outlier rejection, Kalman update, injection) is avio/filter/update.py. Equations: docs/model.md.
 
 Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column
 Jacobians, 16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work
 that numpy spread over ~200 calls per frame, whose overhead cost more than the arithmetic.
-numba with ``cache=True`` (compiled once, then loaded from avio/__pycache__; NB numba's cache
-does not notice edits to functions of other modules called from a cached one: after editing
-avio/measurement.py, avio/outliers.py, avio/_linalg.py or avio/imu_propagation.py, delete
-avio/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
+numba with ``cache=True`` (compiled once, then loaded from avio/filter/__pycache__; NB numba's
+cache does not notice edits to functions of other modules called from a cached one: after
+editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or propagation.py, delete
+avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
 numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
 filter runs alone on one thread (:func:`run_filters` runs a contiguous range of the batch, one
 filter after the other, with one set of workspaces allocated once, so nothing is allocated per
-frame; it releases the GIL and avio/filter.py runs one range per thread), so a batch gives the
+frame; it releases the GIL and avio/filter/batch.py runs one range per thread), so a batch gives the
 same numbers as single runs whatever the thread count.
 
-Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (filter.py).
+Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (docs/model.md, Eq. 8).
 One filter: R (3, 3) ``R_world_imu``; p, v, ba, bg (3,); clones cp0, cp1 (3,), cR0, cR1 (3, 3)
 (frames k-2, k-1); covariance P (27, 27); calibration fx, fy, cx, cy, td scalars, Rci
 ``R_cam_imu`` (3, 3), pic ``p_imu_cam_m`` (3,). ``*_all`` wrappers take the same with a
@@ -39,7 +39,7 @@ def propagate_covariance(Pi, Phi, Qd, T, U):
     """Covariance prediction of one filter, in place: ``P <- F P F^T + Q`` with
     ``F = blockdiag(Phi, I_12)`` (clones have no dynamics), Phi (15, 15) the core error
     transition of the interval, Qd (15, 15) its discrete process noise (T (15, 27), U (15, 15):
-    scratch)."""
+    scratch). (docs/model.md, Eq. 18; Phi: Eq. 16, Qd: Eq. 17.)"""
     # Written out (matmul on slices would use strided views); zeros of Phi are skipped.
     # T = Phi P[0:15, :] (rows of the new cross-covariances and of W = Phi P15), U = W^T.
     for a in range(15):
@@ -53,7 +53,7 @@ def propagate_covariance(Pi, Phi, Qd, T, U):
     for a in range(15):
         for b in range(15):
             U[a, b] = T[b, a]
-    # P15 <- Phi W^T + Q = Phi P15 Phi^T + Q; cross blocks <- T[:, 15:27].
+    # Eq. (18): P15 <- Phi W^T + Q = Phi P15 Phi^T + Q; cross blocks <- T[:, 15:27].
     for a in range(15):
         for b in range(15):
             Pi[a, b] = Qd[a, b]
@@ -71,12 +71,15 @@ def propagate_covariance(Pi, Phi, Qd, T, U):
 def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
     """Slide the window of one filter, in place: drop clone k-2 (cp (2, 3), cR (2, 3, 3)), move
     k-1 down, clone the current exposure-time pose (:func:`shifted_pose`); its covariance rows
-    are ``J P[0:15]`` (R3, p3, J, E, NR (6, 27): scratch)."""
+    are ``J P[0:15]`` (R3, p3, J, E, NR (6, 27): scratch). (docs/model.md, Eq. 50; the shifted
+    pose and J: Eq. 19.)"""
+    # Eq. (19): the exposure-time pose and its Jacobian J (6, 15).
     shifted_pose(R, p, v, omega, td, R3, p3, J, E)
     copy1(cp[0], cp[1])
     copy2(cR[0], cR[1])
     copy1(cp[1], p3)
     copy2(cR[1], R3)
+    # Eq. (50): the new clone's rows J P[0:15, :], its block J P_cc J^T; clone k-1 moves down.
     for a in range(6):
         for b in range(27):
             NR[a, b] = 0.0
@@ -109,9 +112,10 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
 def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
     """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
-    (symmetrised), then the injection. A full update: the position error accumulated while
-    braking is corrected through the position-velocity correlation (a "consider" update of
-    the velocity and biases only was tried: 4.9 m instead of 1.4 m at the truth, seed 0).
+    (symmetrised), then the injection (docs/model.md, Eq. 49; injection Eq. 8). A full update:
+    the position error accumulated while braking is corrected through the position-velocity
+    correlation (a "consider" update of the velocity and biases only was tried: 4.9 m instead
+    of 1.4 m at the truth, seed 0).
     Allocates its scratch; the filter calls :func:`zero_velocity_update_into`."""
     S, Z, dx, K = zero_velocity_workspace()
     zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K)
@@ -126,6 +130,7 @@ def zero_velocity_workspace():
 @numba.njit(cache=True, error_model="numpy")
 def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K):
     """:func:`zero_velocity_update` with its scratch passed in (:func:`zero_velocity_workspace`)."""
+    # Eq. (49): S = P_vv + sigma^2 I and Z = S^-1 [P_v. | -v].
     for a in range(3):
         for b in range(3):
             S[a, b] = Pi[6 + a, 6 + b] + (sigma_mps * sigma_mps if a == b else 0.0)
@@ -133,6 +138,7 @@ def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps
             Z[a, b] = Pi[6 + a, b]
         Z[a, 27] = -v[a]
     solve(S, Z)
+    # Eq. (49): dx = P_.v S^-1 (0 - v), P <- sym(P - P_.v S^-1 P_v.).
     for a in range(27):
         dx[a] = Pi[a, 6] * Z[0, 27] + Pi[a, 7] * Z[1, 27] + Pi[a, 8] * Z[2, 27]
     for a in range(27):
@@ -142,12 +148,13 @@ def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps
         for b in range(a + 1):
             s = 0.5 * ((Pi[a, b] - K[a, b]) + (Pi[b, a] - K[b, a]))
             Pi[a, b], Pi[b, a] = s, s
+    # Eq. (8): the injection.
     inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _bad(R, p, v, Pi, max_variance, max_speed):
-    """Divergence test of one filter (avio/filter.py): non-finite state or covariance, a
+    """Divergence test of one filter (docs/model.md, Eq. 51): non-finite state or covariance, a
     covariance diagonal above max_variance, or a speed above max_speed."""
     nonfinite = False  # x - x is NaN exactly for inf and NaN; no early exit, so it vectorises
     for a in range(27):
@@ -171,9 +178,10 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                 mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
                 out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
                 out_nll, out_slots, out_used):
-    """All frames of the n filters (avio/filter.py: run): each filter alone, one after the
-    other (so a batch gives the same bits as single runs), its frames in order: prediction
-    (:func:`avio.imu_propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
+    """All frames of the n filters (avio/filter/batch.py: run): each filter alone, one after the
+    other (so a batch gives the same bits as single runs), its frames in order (docs/model.md,
+    "One frame, in order"): prediction
+    (:func:`avio.filter.propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
     :func:`update` or, standing still, :func:`zero_velocity_update`, :func:`slide`, the
     divergence test. A diverged filter (or one with ``frozen`` set: a non-finite calibration)
     keeps the estimates of its last good frame, reports the initial sigmas and no updates
@@ -185,7 +193,7 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
     The biases start at ba0, bg0 (3,), the prior means.
     This call runs filters lo..hi-1 (of the n of the out_* arrays), one after the other, with one
     set of workspaces allocated here (nothing is allocated in the frame loop); it releases the
-    GIL, so avio/filter.py runs contiguous ranges of a batch on several threads at once (each
+    GIL, so avio/filter/batch.py runs contiguous ranges of a batch on several threads at once (each
     filter on one thread, with the same operations as alone: the bits do not depend on the
     batch or thread count).
     """
@@ -229,6 +237,7 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
         for k in range(k_stop):
             copy1(ba_s, ba)
             copy1(bg_s, bg)
+            # Prediction: nominal state (Eqs. 14-16), covariance (Eq. 18).
             if k > 0:
                 propagate_one(R, v, p, ba, bg, g, dR[k], dv[k], dp[k], S[k], SS[k], Vbg[k], Pbg[k], T_s[k],
                               R_new, v_new, p_new, Phi, pws)
@@ -237,9 +246,12 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                 copy2(R_new, R)
                 copy1(v_new, v)
                 copy1(p_new, p)
+            # omega of the time shift, Eq. (19): the gyro at the frame time minus the bias.
             for a in range(3):
                 omega[a] = gyro_frame[k, a] - bg[a]
             j = triplet_of_frame[k]
+            # Standing still (Eqs. 47-48): the zero-velocity update (Eq. 49) replaces the trifocal
+            # update (Eqs. 20-46).
             if k >= 2 and stationary[k] and zero_velocity_sigma_mps > 0:
                 zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
                                           zero_velocity_sigma_mps, E, T3, zS, zZ, zdx, zK)
@@ -251,7 +263,9 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
                     ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows, record, decided)
                 n_upd[i, k], n_out[i, k] = used, rej
                 out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
+            # Slide (Eq. 50).
             slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)
+            # Divergence (Eq. 51): this frame's outputs are those of the last good one.
             if _bad(R_new, p_new, v_new, P, max_variance, max_speed):
                 div_at[i] = k
                 n_upd[i, k] = 0

@@ -1,24 +1,25 @@
-"""Trifocal measurement model of the filter: residuals and analytic Jacobians (PAPER.md §2).
+"""Trifocal measurement model of the filter: residuals and analytic Jacobians (docs/model.md,
+Sections "Time offset" to "Noise model", Eqs. 19-34).
 
 For a feature seen in images 1, 2, 3 (frames k-2, k-1, k) at pixels m1, m2, m3, four residuals
 in pixels:
 
-- r0: Sampson distance of the epipolar constraint 1–2, ``m2^T K^-T R12^T [t12]x K^-1 m1`` divided
+- r0: Sampson distance of the epipolar constraint 1–2 (Eqs. 25-26), ``m2^T K^-T R12^T [t12]x K^-1 m1`` divided
   by the norm of the first two entries of ``F m1`` and ``F^T m2`` (first-order geometric
   distance, pixels; the algebraic value in normalised coordinates would carry almost no weight);
 - r1: the same for images 2–3;
-- r2, r3: ``m3`` minus the trifocal point transfer 1→3 through image 2 (point–line–point
+- r2, r3: ``m3`` minus the trifocal point transfer 1→3 through image 2 (Eqs. 27-28; point–line–point
   transfer; the line through m2 perpendicular to the epipolar line ``F12 m1``):
   ``x3 ∝ -(l'·a4) B x1 + (l'·A x1) b4`` with ``P2 = [A|a4]``, ``P3 = [B|b4]`` relative to
   camera 1.
 
-Relative poses (camera frames, x right, y down, z forward): ``R1j = R_world_cam1^T R_world_camj``
+Relative poses (Eq. 21; camera frames, x right, y down, z forward): ``R1j = R_world_cam1^T R_world_camj``
 maps camera-j vectors into camera 1, ``t1j = R_world_cam1^T (p_world_camj - p_world_cam1)``
 is camera j's origin in camera 1.
 
 Jacobians are taken with respect to the 12 relative-pose perturbations
-``[psi12, dt12, psi13, dt13]`` with ``R1j <- R1j exp(psi1j)``, ``t1j <- t1j + dt1j``; the filter
-(avio/_kernels.py) chains them to its 27-dim error state.
+``[psi12, dt12, psi13, dt13]`` with ``R1j <- R1j exp(psi1j)``, ``t1j <- t1j + dt1j`` (Eqs. 30-33);
+:func:`measure` chains them to the filter's 27-dim error state (Eqs. 20-24).
 
 The per-feature arithmetic is compiled with numba (``cache=True``, no fastmath, so results are
 deterministic): the filter calls :func:`feature_residuals` for every feature of every filter
@@ -84,7 +85,9 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
     in normalised coordinates of b, and ``g_pix = dr / d(ua, va, ub, vb)`` (4-tuple, 1/px·px:
     the unit-norm pixel gradient of the Sampson distance, whose denominator is exactly that
     gradient's norm; first order, as the distance itself).
+    docs/model.md: e, w Eq. 25 (u there is n), r Eq. 26, gradients Eqs. 30-31, g_pix Eq. 34.
     """
+    # Eq. (25)
     c = cross(t, xa)
     Rxb = rot(R_ab, xb)
     e = dot(Rxb, c)
@@ -93,9 +96,11 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
     ifx, ify = 1.0 / fx, 1.0 / fy
     gam = (w[0] * ifx * ifx, w[1] * ify * ify, 0.0)
     eta = (u[0] * ifx * ifx, u[1] * ify * ify, 0.0)
+    # Eq. (26): the Sampson distance e / s.
     s = np.sqrt((w[0] * ifx) ** 2 + (w[1] * ify) ** 2 + (u[0] * ifx) ** 2 + (u[1] * ify) ** 2)
     i_s = 1.0 / s
     r = e * i_s
+    # Eqs. (30)-(31): de/dpsi, de/dt and the terms of ds/dpsi, ds/dt.
     de_psi = cross(xb, w)
     de_t = cross(xa, Rxb)
     a1, a2 = cross(gam, w), cross(xb, rot_t(R_ab, cross(t, eta)))
@@ -106,13 +111,15 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
              (de_psi[2] - ri * (a1[2] + a2[2])) * i_s)
     g_t = ((de_t[0] - ri * (b1[0] + b2[0])) * i_s, (de_t[1] - ri * (b1[1] + b2[1])) * i_s,
            (de_t[2] - ri * (b1[2] + b2[2])) * i_s)
+    # Eq. (34): the unit pixel gradient.
     g_pix = (u[0] * ifx * i_s, u[1] * ify * i_s, w[0] * ifx * i_s, w[1] * ify * i_s)
     return r, g_psi, g_t, w, g_pix
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _transfer_grads(y, R12, l_n, w12, x1, x20, x21, a, ia):
-    # d(y·lam)/d psi12 and / d t12 (lam = R12 l_n; PAPER.md closed form, differentiated).
+    # d(y·lam)/d psi12 and / d t12 (lam = R12 l_n; the closed form of docs/model.md Eq. 28,
+    # differentiated: Eq. 33).
     yt = rot_t(R12, y)
     z = (-yt[1] * ia + x21 * yt[2] * ia, a * yt[0] - a * x20 * yt[2], 0.0)  # L^T yt
     g1, g2 = cross(l_n, yt), cross(z, w12)
@@ -128,21 +135,26 @@ def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
     (normalised, from :func:`epipolar_sampson`). The perpendicular through m2 is taken in
     pixels (as the paper's point–line–point transfer), then mapped to normalised coordinates:
     ``l_n = K^T l_px = (a w1, -w0 / a, -a x2_0 w1 + x2_1 w0 / a)``, ``a = fx/fy``.
+    docs/model.md: l_n Eq. 27, the transfer Eq. 28, its Jacobian Eqs. 32-33.
     """
     a = fx / fy
     ia = 1.0 / a
     w0, w1 = w12[0], w12[1]
     x20, x21 = x2[0], x2[1]
+    # Eq. (27)
     l_n = (a * w1, -w0 * ia, -a * x20 * w1 + x21 * w0 * ia)
+    # Eq. (28)
     lam = rot(R12, l_n)  # R12 l_n: P2 = [R12^T | -R12^T t12] makes l·a4 = -(R12 l)·t12
     s1 = dot(lam, t12)
     s2 = dot(lam, x1)
     X = rot_t(R13, _axpy(s1, x1, -s2, t13))
+    # Eq. (33)
     s1_psi, s1_t = _transfer_grads(t12, R12, l_n, w12, x1, x20, x21, a, ia)
     s1_t = (s1_t[0] + lam[0], s1_t[1] + lam[1], s1_t[2] + lam[2])
     s2_psi, s2_t = _transfer_grads(x1, R12, l_n, w12, x1, x20, x21, a, ia)
     iX2 = 1.0 / X[2]
     fs = (fx, fy)
+    # Eq. (32), one pixel row at a time.
     for i in range(2):
         # Row i of Jp = d(pixel_i)/dX: (f iX2 e_i - f X_i iX2^2 e_2).
         jp = (fs[i] * iX2 if i == 0 else 0.0, fs[i] * iX2 if i == 1 else 0.0, -fs[i] * X[i] * iX2 * iX2)
@@ -173,7 +185,8 @@ def _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy):
 def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
     """d(transfer pixel (u, v)) / d(u1, v1, u2, v2) into G (2, 4): how the transferred point
     moves with the measured points of images 1 and 2 (through x1, the epipolar line w12 of x1
-    and the perpendicular line through x2); the noise amplification of the transfer."""
+    and the perpendicular line through x2); the noise amplification of the transfer
+    (docs/model.md, Eq. 34)."""
     a = fx / fy
     ia = 1.0 / a
     w0, w1 = w12[0], w12[1]
@@ -210,11 +223,13 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
     ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``. ``pair23=False`` skips r1 (row 1 of r, J
     and G are zero): the filter's update does not use it (avio/filter/update.py, USED_RESIDUALS);
     skipping it made the whole filter 8 % cheaper (benchmarks/README.md: the Sampson A/B).
+    docs/model.md: r Eq. 29, J Eqs. 30-33, G Eq. 34.
     """
     ifx, ify = 1.0 / fx, 1.0 / fy
     x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)
     x2 = ((uv[1, 0] - cx) * ifx, (uv[1, 1] - cy) * ify, 1.0)
     x3 = ((uv[2, 0] - cx) * ifx, (uv[2, 1] - cy) * ify, 1.0)
+    # Eq. (29), row 0: the 1-2 Sampson distance; G row 0: Eq. (34).
     h0, gp0, gt0, w12, gx0 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
     r[0] = -h0
     for c in range(6):
@@ -222,6 +237,7 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
             G[a, c] = 0.0
     for c in range(4):
         G[0, c] = -gx0[c]
+    # Eq. (34): the transfer rows of G, [-dm3/d(m1, m2), I].
     transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G[2:4, 0:4])
     for a in range(2):
         for c in range(4):
@@ -247,6 +263,7 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
         r[1] = 0.0
         for c in range(12):
             J[1, c] = 0.0
+    # Eq. (29), rows 2-3: m3 minus the transfer (Eq. 28); J rows 2-3: Eq. (32).
     u, v = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J[2:4])
     r[2], r[3] = uv[2, 0] - u, uv[2, 1] - v
 
@@ -285,7 +302,7 @@ def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, with_pixel_jaco
 
 
 def relative_poses(Rc, pc):
-    """Camera poses of the triplet -> ``(R12, t12, R13, t13)``.
+    """Camera poses of the triplet -> ``(R12, t12, R13, t13)`` (docs/model.md, Eq. 21).
 
     Rc (3, n, 3, 3) ``R_world_cam`` and pc (3, n, 3) ``p_world_cam`` of images 1, 2, 3.
     """
@@ -300,7 +317,7 @@ def relative_poses(Rc, pc):
 def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
     """Exposure-time IMU pose of one filter, ``(p + v td, R exp(w td))``, into p3 (3,), R3 (3, 3),
     and its (6, 15) Jacobian J w.r.t. the core error ``[dp, dtheta, dv, db_a, db_g]``
-    (E (3, 3): scratch)."""
+    (E (3, 3): scratch). docs/model.md, Eq. 19."""
     so3_exp(omega[0] * td, omega[1] * td, omega[2] * td, E)
     matmul(R, E, R3)
     J[:] = 0.0
@@ -327,7 +344,7 @@ def measure_workspace():
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
-    noise model, avio.measurement.feature_residuals, which writes one feature's column: features
+    noise model, avio.filter.measurement.feature_residuals, which writes one feature's column: features
     last, as the update uses them) and the map C (12, 27) from the error
     state to those (so ``H = J C``, ``dr = -H dx``) of one filter, written into the arrays;
     also t12, t13 (3,).
@@ -336,10 +353,13 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     pose) -> camera pose errors ``[dp_cam, phi]`` (``phi = R_cam_imu dtheta``,
     ``dp_cam = dp - R_world_imu [p_imu_cam]x dtheta``) -> relative-pose errors
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
-    -> residuals (avio.measurement.feature_residuals). ``pair23=False`` leaves residual 1 (the
+    -> residuals (:func:`feature_residuals`). ``pair23=False`` leaves residual 1 (the
     Sampson distance 2-3, which the update does not use) zero.
+    docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
+    errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
     R3, p3, Jsh, Rc, pc, G, M, R12, R13, R23, D, E = ws
+    # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose
     # errors -> relative-pose errors. Both keep their zero pattern between calls (the
@@ -351,7 +371,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
             for j in range(3):
                 Rc[a, i, j] = Ri[i, 0] * Rci[j, 0] + Ri[i, 1] * Rci[j, 1] + Ri[i, 2] * Rci[j, 2]
             pc[a, i] = pi[i] + Ri[i, 0] * pic[0] + Ri[i, 1] * pic[1] + Ri[i, 2] * pic[2]
-        # M = [[I, -R_imu [pic]x], [0, R_cam_imu]]
+        # Eq. (20): camera pose of image a+1 (Rc = R_world_imu R_cam_imu^T, pc = p + R p_imu_cam).
+        # Eq. (22): M = [[I, -R_imu [pic]x], [0, R_cam_imu]]
         M[:] = 0.0
         for i in range(3):
             M[i, i] = 1.0
@@ -366,6 +387,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
             for i in range(6):
                 for j in range(6):
                     G[6 * a + i, 15 + 6 * a + j] = M[i, j]
+    # Eq. (21): relative poses.
     for i in range(3):
         for j in range(3):
             R12[i, j] = Rc[0, 0, i] * Rc[1, 0, j] + Rc[0, 1, i] * Rc[1, 1, j] + Rc[0, 2, i] * Rc[1, 2, j]
@@ -382,6 +404,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     for f in range(uv.shape[0]):
         feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[:, f], J[:, :, f], Gp[:, :, f],
                           pair23)
+    # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
         col = 6 * (jj + 1)
@@ -394,7 +417,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
         D[row + 3, 4], D[row + 3, 5] = -t[2], t[1]  # [t1j]x
         D[row + 4, 3], D[row + 4, 5] = t[2], -t[0]
         D[row + 5, 3], D[row + 5, 4] = -t[1], t[0]
-    # C = D G, each row of G only over its block's columns (images 1, 2: clones; 3: core).
+    # Eq. (24): C = D G, each row of G only over its block's columns (images 1, 2: clones; 3: core).
     for i in range(12):
         for j in range(27):
             C[i, j] = 0.0

@@ -1,26 +1,28 @@
-"""Per-filter outlier rejection of the trifocal measurements (PAPER.md §2, "Outliers").
+"""Per-filter outlier rejection of the trifocal measurements (docs/model.md, "Outlier rejection",
+Eqs. 37-39).
 
 Both tests work on the whitened, linearised measurement of each feature (m residuals;
 the filter uses 3: the 1–2 Sampson distance and the 2-D transfer error, pixels) and decide per filter:
 
 - :func:`mahalanobis_gate`: chi-square gate of ``r_j^T S_j^-1 r_j`` with
   ``S_j = H_j P H_j^T + R_j`` (m degrees of freedom; ``R_j`` the feature's own m x m measurement
-  covariance, avio.measurement.feature_residuals);
+  covariance, avio/filter/update.py: _noise_model; Eqs. 37, 39);
 - :func:`one_point_ransac`: the paper's 1-point RANSAC (Civera et al. 2010) with the filter's
   prediction: every feature in turn is a hypothesis (so no random draw, and a batch gives the
   same answer as single runs); the state is corrected with that feature alone (one Kalman
   step, linearised), the other features' residuals are predicted after the correction, and a
   feature is an inlier when each of its residuals is within ``threshold_sigma`` of its own
-  measurement standard deviations ``sd_j = sqrt(diag R_j)``. The hypothesis with most inliers wins (ties: the first).
+  measurement standard deviations ``sd_j = sqrt(diag R_j)``. The hypothesis with most inliers
+  wins (ties: the first). (Eq. 38.)
 
 Compiled with numba (``cache=True``, no fastmath): the filter's update kernel
-(avio/_kernels.py) calls these once per filter and frame. Layout "features last" (one filter,
+(avio/filter/update.py) calls these once per filter and frame. Layout "features last" (one filter,
 m residuals per feature, F features): r (m, F), H (m, d, F), Rm (m, m, F) the measurement
 covariances, P (d, d) the covariance of the d parameters H differentiates against, valid (F,)
 bool. The feature axis is innermost so that each step runs over all F features at once in
 contiguous memory, which the compiler turns into SIMD code (issue 13: twice as fast as one
 feature after the other); every feature still sees the same operations in the same order, so
-the bits are those of the feature-by-feature code it replaced (tests/avio/test_filter_batch.py).
+the bits are those of the feature-by-feature code it replaced (tests/avio/filter/test_batch.py).
 """
 
 from __future__ import annotations
@@ -105,7 +107,8 @@ def innovations_workspace(m, d, F):
 def feature_innovations(r, H, P, Rm, B, z, logdet):
     """Per-feature ``B_j = H_j L`` (m, d, F) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``),
     ``z_j = S_j^-1 r_j`` (m, F) with ``S_j = H_j P H_j^T + R_j = B_j B_j^T + R_j`` and
-    ``logdet_j = log det S_j`` (F,), written into B, z and logdet; shared by both tests. Through
+    ``logdet_j = log det S_j`` (F,) (docs/model.md, Eq. 37), written into B, z and logdet; shared by
+    both tests. Through
     L the products cost half of ``H_j P`` (L is triangular). Allocates its scratch; the filter
     calls :func:`feature_innovations_into` with a workspace.
     """
@@ -118,6 +121,7 @@ def feature_innovations(r, H, P, Rm, B, z, logdet):
 def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
     """:func:`feature_innovations` with its scratch passed in (:func:`innovations_workspace`)."""
     m, d, F = H.shape
+    # Eq. (37): B = H L with P = L L^T, S = B B^T + Rm, its Cholesky factor, log det S, z = S^-1 r.
     _cholesky(P, Lp)
     for a in range(m):
         for c in range(d):
@@ -150,7 +154,7 @@ def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
 @numba.njit(cache=True, error_model="numpy")
 def mahalanobis_gate(r, z, valid, chi2_threshold, out):
     """out (F,) True where the feature passes ``r^T S^-1 r <= chi2_threshold`` (and is valid);
-    z from :func:`feature_innovations`."""
+    z from :func:`feature_innovations`. docs/model.md, Eq. 39."""
     m, F = r.shape
     for f in range(F):
         d2 = 0.0
@@ -170,7 +174,8 @@ def ransac_workspace(F, m, d):
 def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
     B, z from :func:`feature_innovations`; sd (m, F) the residuals' measurement standard
-    deviations. Allocates its scratch; the filter calls :func:`one_point_ransac_into`."""
+    deviations. Allocates its scratch; the filter calls :func:`one_point_ransac_into`.
+    docs/model.md, Eq. 38."""
     m, d, F = B.shape
     Y, moved, inlier, count = ransac_workspace(F, m, d)
     one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count)
@@ -180,7 +185,7 @@ def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
 def one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count):
     """:func:`one_point_ransac` with its scratch passed in (:func:`ransac_workspace`)."""
     m, d, F = B.shape
-    # Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h = L y_h with y_h = B_h^T z_h
+    # Eq. (38). Correction of hypothesis h alone: dx_h = P H_h^T S_h^-1 r_h = L y_h with y_h = B_h^T z_h
     # (columns of Y, (d, F)); every feature's residual then moves by
     # H_j dx_h = B_j y_h: moved = B Y, ((j, a), h).
     for c in range(d):

@@ -1,7 +1,7 @@
 """What the filter needs that does not depend on the calibration, built once per sequence:
 IMU preintegration, feature selection (bucketing), process noise and the standstill flags.
 
-Equations: docs/model.md, "Prediction" and "Standing still"."""
+Equations: docs/model.md, "Prediction" (Eqs. 12-13, 17) and "Standing still" (Eqs. 47-48)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from avio.sequence import Sequence
 class _Prepared:
     """Calibration-independent inputs, built once per (sequence, config)."""
 
-    pre: object  # avio.imu_propagation.Preintegrated
+    pre: object  # avio.filter.propagation.Preintegrated
     triplet_of_frame: np.ndarray  # (N,) triplet index ending at the frame, -1 if none
     uv_px: np.ndarray  # (n_trip, F, 3, 2) selected features
     valid: np.ndarray  # (n_trip, F)
@@ -37,6 +37,7 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
         raise FilterError(f"sequence {sequence.name!r} has no feature tracks; run the front end first")
     tr = sequence.tracks
     imu = sequence.imu
+    # Eqs. (12)-(13): the bias-free increments of every frame interval.
     pre = preintegrate(imu.t_s, imu.accel_imu_mps2, imu.gyro_imu_radps, sequence.frame_t_s,
                        config.rk4_max_step_s)
     N = sequence.n_frames
@@ -53,12 +54,14 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     steps = np.diff(tr.uv_px, axis=2)  # (n_trip, F, 2, 2)
     cosine = np.sum(steps[:, :, 0] * steps[:, :, 1], axis=-1) / np.maximum(
         np.linalg.norm(steps[:, :, 0], axis=-1) * np.linalg.norm(steps[:, :, 1], axis=-1), 1e-12)
+    # Eq. (48): the image test of standing still (median flow and coherence of the triplet).
     still_images = np.zeros(N, bool)
     has = tr.n_features >= 3
     median_flow = np.nanmedian(np.where(tr.valid[has], flow13[has], np.nan), axis=1)
     median_cosine = np.nanmedian(np.where(tr.valid[has], cosine[has], np.nan), axis=1)
     still_images[tr.frame_index[has]] = ((median_flow < config.stationary_flow_px)
                                          & (median_cosine < config.stationary_max_coherence))
+    # Standing still: the image test and the IMU test (Eq. 47).
     stationary = still_images & imu_still(imu, sequence.frame_t_s, sequence.imu_noise, config)
     trip, feat = np.nonzero(tr.valid & (moving >= config.min_feature_flow_px))
     uv3 = tr.uv_px[trip, feat, 2]
@@ -79,6 +82,7 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     tof[tr.frame_index] = np.arange(len(tr.frame_index))
     nz = sequence.imu_noise
     s = config.imu_noise_scale
+    # Eq. (17): the discrete process noise of every interval.
     Qd = np.stack([process_noise(T, s * nz.accel_noise, s * nz.gyro_noise, s * nz.accel_bias_walk,
                                  s * nz.gyro_bias_walk) for T in pre.T_s])
     return _Prepared(pre, tof, uv, valid, Qd, stationary)
@@ -89,7 +93,8 @@ def imu_still(imu, frame_t_s: np.ndarray, noise, config: FilterConfig) -> np.nda
     """(N,) bool: at each frame time the IMU over the last ``stationary_imu_window_s`` is still:
     every gyro and accelerometer axis varies by less than ``stationary_imu_variance_ratio``
     times the white-noise variance the filter assumes (``density^2 / dt``; at rest the ratio
-    is ~1, braking or turning raises it). Windows with fewer than 5 samples are not still."""
+    is ~1, braking or turning raises it). Windows with fewer than 5 samples are not still.
+    docs/model.md, Eq. 47."""
     dt = float(np.median(np.diff(imu.t_s)))
     s = config.imu_noise_scale
     var0 = np.r_[[(s * noise.gyro_noise) ** 2 / dt] * 3, [(s * noise.accel_noise) ** 2 / dt] * 3]

@@ -1,6 +1,7 @@
-"""Batched IMU propagation of the error-state Kalman filter (PAPER.md §2, "Prediction").
+"""Batched IMU propagation of the error-state Kalman filter (docs/model.md, "Prediction",
+Eqs. 10-18).
 
-Kinematics: ``p' = v``, ``q' = 1/2 q ⊗ [0, w_m - b_g]``, ``v' = R(q) (a_m - b_a) + g``, integrated
+Kinematics (Eq. 11): ``p' = v``, ``q' = 1/2 q ⊗ [0, w_m - b_g]``, ``v' = R(q) (a_m - b_a) + g``, integrated
 with the classical 4th-order Runge–Kutta scheme, the IMU linearly interpolated at the sub-step
 nodes and mid-points. Error state (core, 15): ``[dp, dtheta, dv, db_a, db_g]`` with the rotation
 error local (``R_true = R exp(dtheta)``); its transition over one frame interval is written in
@@ -11,8 +12,8 @@ Two implementations of the same model:
 
 - :func:`preintegrate` + :func:`propagate_preintegrated` (what the filter uses): the RK4 runs
   once per sequence on the bias-free IMU, vectorised over all frame intervals, together with the
-  integrals that give the first-order bias corrections (Forster et al. 2017, "On-manifold
-  preintegration", with RK4 instead of Euler); each filter then applies its own biases
+  integrals that give the first-order bias corrections (Eqs. 12-14; Forster et al. 2017,
+  "On-manifold preintegration", with RK4 instead of Euler); each filter then applies its own biases
   (:func:`propagate_one`, compiled with numba: the filter's kernel calls it per filter and
   frame).
 - :func:`make_substeps` + :func:`propagate_interval`: RK4 of every filter with its own biases,
@@ -153,7 +154,8 @@ def propagate_interval(q, v, p, b_a, b_g, g_world, sub: Substeps, k: int):
 
     q (n, 4), v (n, 3), p (n, 3): nominal state at frame k-1; b_a, b_g (n, 3) biases held
     constant over the interval. Returns ``(q, v, p, Phi)`` at frame k, Phi (n, 15, 15) the
-    transition of the core error state ``[dp, dtheta, dv, db_a, db_g]``:
+    transition of the core error state ``[dp, dtheta, dv, db_a, db_g]`` (docs/model.md, Eq. 16,
+    there with the integrals in the frame of frame k-1):
 
         dtheta_T = R_T^T R_0 dtheta_0 - R_T^T S dbg,             S = int R ds
         dv_T = dv_0 - [Delta]x R_0 dtheta_0 - S dba + V_bg dbg,   Delta = v_T - v_0 - g T
@@ -194,7 +196,7 @@ def propagate_interval(q, v, p, b_a, b_g, g_world, sub: Substeps, k: int):
         v = v + (h / 6.0) * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
         q = q + (h / 6.0) * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
         q = q / np.sqrt(np.einsum("ni,ni->n", q, q))[:, None]
-        # Left-point quadrature of the transition integrals (covariance only).
+        # Left-point quadrature of the transition integrals (covariance only; Eq. 12's S, SS, V, P_b).
         Pbg += h * Vbg
         SS += h * S
         Vbg += h * (skew_fast(Ra0) @ S)
@@ -202,6 +204,7 @@ def propagate_interval(q, v, p, b_a, b_g, g_world, sub: Substeps, k: int):
         R1 = quat_to_matrix(q)
         T += h
     RT = R1
+    # Eq. (16)
     Phi = np.broadcast_to(np.eye(15), (n, 15, 15)).copy()
     RTt = np.swapaxes(RT, 1, 2)
     Delta = v - v0 - g * T
@@ -225,7 +228,7 @@ def process_noise(T_s: float, accel_noise: float, gyro_noise: float, accel_bias_
     Noise densities are continuous-time (ImuNoise). White accelerometer noise integrates into
     velocity and position (the double-integrator blocks sa^2 T, T^2/2, T^3/3); it is isotropic,
     so rotating it into the world frame changes nothing. Gyro noise enters the local rotation
-    error; the biases are random walks.
+    error; the biases are random walks. docs/model.md, Eq. 17.
     """
     Q = np.zeros((15, 15))
     sa2, sg2 = accel_noise**2, gyro_noise**2
@@ -249,6 +252,7 @@ class Preintegrated:
     S (N, 3, 3) = int dR ds; SS = int S ds; Vbg = int [dR a]x S ds; Pbg = int Vbg ds — the last
     four give both the first-order bias corrections and the error transition (see
     :func:`propagate_interval`); T_s (N,); gyro_frame_radps (N, 3) the gyro at the frame times.
+    docs/model.md, Eq. 12 (S2 = SS, V = Vbg, P_b = Pbg there).
     """
 
     dR: np.ndarray
@@ -268,9 +272,11 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     Each interval is split into the same number of equal steps (no longer than ``max_step_s``);
     the IMU is interpolated linearly at step nodes and mid-points. The integrals S, SS, Vbg, Pbg
     are integrated as extra states of the same RK4, so they are as accurate as the increments.
+    docs/model.md, Eqs. 12-13.
     """
     frame_t_s = _covered_frame_times(imu_t_s, frame_t_s)
     T = np.diff(frame_t_s)
+    # Eq. (13): the same number of equal steps in every interval.
     m = int(max(1, np.ceil(T.max() / max_step_s - 1e-9)))
     h = T / m
     M = len(T)
@@ -280,6 +286,7 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     z3, z33 = np.zeros((M, 3)), np.zeros((M, 3, 3))
     state = [q, z3, z3, z33, z33, z33, z33]  # q, dv, dp, S, SS, Vbg, Pbg
 
+    # The right-hand sides of Eq. (12).
     def deriv(s, w, a):
         q_, dv, dp, S, SS, Vbg, Pbg = s
         R = quat_to_matrix(q_)
@@ -323,8 +330,10 @@ def propagate_workspace():
 def propagate_one(R, v, p, b_a, b_g, g_world, dR, dv0, dp0, S, SS, Vbg, Pbg, T, R_new, v_new, p_new, Phi, ws):
     """One filter over one preintegrated interval (rows k of :class:`Preintegrated`: dR, dv0,
     dp0, S, SS, Vbg, Pbg, T): writes R_new (3, 3), v_new, p_new (3,) and the (15, 15) error
-    transition Phi (ws: :func:`propagate_workspace`). See :func:`propagate_preintegrated`."""
+    transition Phi (ws: :func:`propagate_workspace`). See :func:`propagate_preintegrated`.
+    docs/model.md: bias correction Eq. 14, nominal prediction Eq. 15, Phi Eq. 16."""
     E, RdR, M, dv, dp, sb, Delta, Pi = ws
+    # Eq. (14): first-order bias corrections of the increments.
     for i in range(3):
         dv[i] = dv0[i] - (S[i, 0] * b_a[0] + S[i, 1] * b_a[1] + S[i, 2] * b_a[2]) \
             + (Vbg[i, 0] * b_g[0] + Vbg[i, 1] * b_g[1] + Vbg[i, 2] * b_g[2])
@@ -335,6 +344,7 @@ def propagate_one(R, v, p, b_a, b_g, g_world, dR, dv0, dp0, S, SS, Vbg, Pbg, T, 
     so3_exp(-(sb[0] * dR[0, 0] + sb[1] * dR[1, 0] + sb[2] * dR[2, 0]),
             -(sb[0] * dR[0, 1] + sb[1] * dR[1, 1] + sb[2] * dR[2, 1]),
             -(sb[0] * dR[0, 2] + sb[1] * dR[1, 2] + sb[2] * dR[2, 2]), E)
+    # Eq. (15): the nominal prediction (Delta, Pi of Eq. 16 on the way).
     matmul(R, dR, RdR)
     matmul(RdR, E, R_new)
     for i in range(3):
@@ -342,6 +352,7 @@ def propagate_one(R, v, p, b_a, b_g, g_world, dR, dv0, dp0, S, SS, Vbg, Pbg, T, 
         p_new[i] = p[i] + v[i] * T + 0.5 * g_world[i] * T * T + (R[i, 0] * dp[0] + R[i, 1] * dp[1] + R[i, 2] * dp[2])
         Delta[i] = v_new[i] - v[i] - g_world[i] * T
         Pi[i] = p_new[i] - p[i] - v[i] * T - 0.5 * g_world[i] * T * T
+    # Eq. (16): the error transition.
     Phi[:] = 0.0
     for i in range(15):
         Phi[i, i] = 1.0

@@ -1,8 +1,10 @@
 """The trifocal update of one filter at one frame (compiled): measurement chain, noise model,
 outlier rejection, Kalman update in information form, and the injection of the correction.
 
-Equations: docs/model.md, "Update". Called by :func:`avio.filter.kernels.run_filters`, once per
-filter and update frame, with workspaces allocated once per filter range."""
+Equations: docs/model.md, Sections "Noise model" to "Innovation statistics" (Eqs. 29, 34-46);
+the measurement chain and Jacobians are avio/filter/measurement.py (Eqs. 19-33). Called by
+:func:`avio.filter.kernels.run_filters`, once per filter and update frame, with workspaces
+allocated once per filter range."""
 
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ def _rotate(Rm, dtheta, E, T):
 @numba.njit(cache=True, error_model="numpy")
 def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
     """Add the error-state correction dx (27,) to one filter's nominal state (local rotation
-    errors, ``R <- R exp(dtheta)``), in place (E, T (3, 3): scratch)."""
+    errors, ``R <- R exp(dtheta)``), in place (E, T (3, 3): scratch); docs/model.md, Eq. 8."""
     for i in range(3):
         p[i] += dx[i]
         v[i] += dx[6 + i]
@@ -63,7 +65,7 @@ def update_workspace(F):
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
     pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
-    (avio/outliers.py), the M used residuals, their Jacobians and pixel
+    (avio/filter/outliers.py), the M used residuals, their Jacobians and pixel
     sensitivities (M, F), (M, 12, F), (M, 6, F); covariances R_f and their Cholesky factors
     (M, M, F), standard deviations (M, F), log det R_f and log det S_f (F,), the whitened
     residuals and Jacobians (M, F), (M, 12, F), one feature's whitened Jacobian (M, 12) and a
@@ -77,7 +79,7 @@ def noise_workspace(F):
 @numba.njit(cache=True, error_model="numpy")
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
-    (avio.outliers.innovations_workspace, then avio.outliers.ransac_workspace)."""
+    (avio.filter.outliers.innovations_workspace, then avio.filter.outliers.ransac_workspace)."""
     Lp, S, L, y = innovations_workspace(M, 12, F)
     Y, moved, inlier, count = ransac_workspace(F, M, 12)
     return Lp, S, L, y, Y, moved, inlier, count
@@ -89,12 +91,13 @@ LOG_2PI = np.log(2.0 * np.pi)
 
 
 
-#: The residuals the update uses, of the 4 of avio.measurement: the 1-2 Sampson distance and the
-#: two transfer coordinates. A point seen in three images gives 3 independent constraints (6
-#: measured coordinates minus its 3 coordinates): to first order the 2-3 Sampson distance is
-#: a combination of the other three, so the 4x4 covariance from the pixel noise is singular
-#: (smallest eigenvalue ~1e-4 sigma^2 against ~0.6 sigma^2 for these three on the default drive)
-#: and whitening all four would turn linearisation error into near-certain information.
+#: The residuals the update uses, of the 4 of avio.filter.measurement (docs/model.md, Eq. 29):
+#: the 1-2 Sampson distance and the two transfer coordinates. A point seen in three images gives
+#: 3 independent constraints (6 measured coordinates minus its 3 coordinates): to first order
+#: the 2-3 Sampson distance is a combination of the other three, so the 4x4 covariance from the
+#: pixel noise is singular (smallest eigenvalue ~1e-4 sigma^2 against ~0.6 sigma^2 for these
+#: three on the default drive) and whitening all four would turn linearisation error into
+#: near-certain information.
 USED_RESIDUALS = (0, 2, 3)
 
 
@@ -103,8 +106,9 @@ M = 3
 
 
 
-#: R_f gets (NOISE_FLOOR * sigma)^2 on its diagonal: keeps it positive definite when a
-#: geometry makes two residuals react to the pixels in the same way (it changes no decision).
+#: R_f gets (NOISE_FLOOR * sigma)^2 on its diagonal (docs/model.md, Eq. 35): keeps it positive
+#: definite when a geometry makes two residuals react to the pixels in the same way (it changes
+#: no decision).
 NOISE_FLOOR = 0.01
 
 
@@ -113,9 +117,11 @@ NOISE_FLOOR = 0.01
 def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of every feature (G (M, 6, F) the used
     residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
-    log det R_f, into the workspace arrays (features last: (M, M, F), (M, F), (F,))."""
+    log det R_f, into the workspace arrays (features last: (M, M, F), (M, F), (F,)).
+    docs/model.md, Eq. 35 (G: Eq. 34)."""
     s2 = sigma_px * sigma_px
     F = Gp.shape[2]
+    # Eq. (35): R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I.
     for a in range(M):
         for b in range(a + 1):
             for f in range(F):
@@ -140,7 +146,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
 
     Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
     baseline or with a degenerate transfer: not used), each feature's measurement covariance
-    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.measurement.feature_residuals), outlier
+    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.filter.measurement.feature_residuals), outlier
     rejection (``mode``: MODE_* of this module) on the linearised measurement, then the Kalman
     update. A transfer is degenerate when it amplifies the pixel noise more than
     ``max_transfer_gain`` times (the line through m2 nearly through the epipole: tiny changes of
@@ -159,21 +165,25 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws: :func:`noise_workspace`,
     ows: :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
-    avio/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
+    avio/filter/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
+    Equations (docs/model.md): residuals and Jacobians Eqs. 19-33, noise Eqs. 34-36, outliers
+    Eqs. 37-39, update Eqs. 40-43, statistics Eqs. 44-46.
     """
     F, d = uv.shape[0], 12
     r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3 = ws
     G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, Jw, jw_f, beta = nws
     oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
+    # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
+    # G4 and the chain C (H = J C).
     measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws, False)
-    # Without baseline the epipolar geometry and the transfer are undefined (standing still).
+    # Eq. (36): without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
     moving = b12 > min_parallax_m and b23 > min_parallax_m
     n_valid = 0
     gain_limit2 = (max_transfer_gain * sigma_px) ** 2
     log_s2 = np.log(sigma_px * sigma_px)
-    # The used rows, features last (avio/outliers.py): every step below runs over all F
+    # The used rows (Eq. 29), features last (avio/filter/outliers.py): every step below runs over all F
     # features at once (SIMD); a feature's own operations are those of one feature alone.
     for a in range(M):
         u = USED_RESIDUALS[a]
@@ -200,6 +210,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
                 ok[f] &= np.isfinite(Gp[a, b, f])
     _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR)  # all features; only those still ok keep it
     n_ok = 0
+    # Eq. (36): the transfer gain, sqrt(R_f[i, i]) <= max_transfer_gain sigma on the transfer's rows.
     for f in range(F):
         ok[f] &= Rm[1, 1, f] <= gain_limit2 and Rm[2, 2, f] <= gain_limit2  # the transfer's rows
         n_ok += ok[f]
@@ -214,7 +225,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
                 for b in range(M):
                     Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
-    # symmetric), Sigma = C P C^T (symmetrised).
+    # symmetric), Sigma = C P C^T (symmetrised; Eq. 37).
     matmul(C, Pi, CP)
     for a in range(27):
         for b in range(d):
@@ -226,8 +237,9 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             Sig[a, b], Sig[b, a] = s, s
     for f in range(F):
         inl[f] = ok[f]
+    # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
     feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, oLp, oS, oL, oy)
-    # The score (avio/objectives.py): every valid feature's own innovation likelihood, its
+    # The score (avio/objectives.py; Eq. 46): every valid feature's own innovation likelihood, its
     # squared Mahalanobis distance capped at the gate, whatever the update does with it.
     nll = 0.0
     for f in range(F):
@@ -239,13 +251,14 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
                 nll += 0.5 * (min(d2, chi2_threshold) + ldS[f] + M * LOG_2PI)
             else:
                 nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
+    # Outlier rejection: 1-point RANSAC (Eq. 38), then the chi-square gate (Eq. 39).
     if mode == MODE_RANSAC or mode == MODE_BOTH:
         one_point_ransac_into(r, HP, z, sd, ok, ransac_threshold_sigma, inl, oY, omoved, oinlier, ocount)
     if mode == MODE_GATE or mode == MODE_BOTH:
         mahalanobis_gate(r, z, inl, chi2_threshold, gate)
         for f in range(F):
             inl[f] = gate[f]
-    # Information form over the inliers: A = Jw^T Jw, beta = Jw^T rw with the whitened
+    # Information form over the inliers (Eq. 40): A = Jw^T Jw, beta = Jw^T rw with the whitened
     # Jw = L_f^-1 J_f, rw = L_f^-1 r_f (R_f = L_f L_f^T): the whitening of all features at
     # once (forward substitution, one residual row at a time), then the sums over the inliers
     # in feature order.
@@ -286,16 +299,18 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         beta[b] = X[b, d]
         for c in range(b):
             A[b, c] = A[c, b]
-    # X = (I + A Sigma)^-1 [A | beta]
+    # X = (I + A Sigma)^-1 [A | beta] (Eqs. 41-42)
     matmul(A, Sig, Mx)
     for a in range(d):
         Mx[a, a] += 1.0
         for b in range(d):
             X[a, b] = A[a, b]
     solve(Mx, X)
+    # Eq. (45): log det S = sum_f log det R_f + log det(I + A Sigma).
     log_det_S = log_det_R
     for a in range(d):
         log_det_S += np.log(abs(Mx[a, a]))  # the pivots of the elimination: det(I + A Sigma) > 0
+    # Eq. (44): NIS = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta.
     nis = rr
     for a in range(d):
         acc = 0.0
@@ -303,12 +318,13 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
             acc += Sig[a, b] * X[b, d]
         nis -= beta[a] * acc
     dof = M * used
+    # Eq. (41): dx = P C^T (I + A Sigma)^-1 beta.
     for a in range(27):
         acc = 0.0
         for b in range(d):
             acc += PCt[a, b] * X[b, d]
         dx[a] = acc
-    # P -= (PCt X[:, :12]) CP: the lower triangle, mirrored (P stays exactly symmetric).
+    # Eq. (42): P -= (PCt X[:, :12]) CP: the lower triangle, mirrored (P stays exactly symmetric).
     for a in range(27):
         for b in range(d):
             K[a, b] = 0.0
@@ -323,5 +339,6 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
                 Pi[a, c] -= kab * CP[b, c]
         for c in range(a):
             Pi[c, a] = Pi[a, c]
+    # Eq. (8): the injection.
     inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)
     return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid

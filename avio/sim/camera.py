@@ -1,10 +1,10 @@
 """A simulated camera: street-like landmarks along a path and their pinhole projections.
 
-Camera pose of a frame = IMU pose composed with the extrinsics (PAPER.md §2):
+Camera pose of a frame = IMU pose composed with the extrinsics (docs/model.md, Eq. 20):
 ``R_world_cam = R_world_imu R_cam_imu^T``, ``p_world_cam = p_world_imu + R_world_imu p_imu_cam``;
 a world point X projects to ``u = fx x/z + cx, v = fy y/z + cy`` with
-``(x, y, z) = R_world_cam^T (X - p_world_cam)`` (Eq. 8). The camera of a frame stamped t sees
-the world at IMU time ``t + time_offset_s``. Works with any truth (the simulator's exact
+``(x, y, z) = R_world_cam^T (X - p_world_cam)`` (docs/model.md, Eq. 5). The camera of a frame
+stamped t sees the world at IMU time ``t + time_offset_s``. Works with any truth (the simulator's exact
 TrajectoryFn, or a GroundTruth at the frames such as KITTI's), and knows nothing of the
 simulator's internals.
 """

@@ -99,7 +99,7 @@ def render_frames(
     """Render one PNG per frame (``frame_000000.png`` ...) into out_dir; return their paths.
 
     The camera of each frame is the truth pose composed with ``calibration`` (batch of 1,
-    avio.camera_sim.camera_poses, time offset included). Saves the true projections
+    avio.sim.camera.camera_poses, time offset included). Saves the true projections
     (``projections.npz``: frame_index, landmark_id, uv_px, depth_m, sigma_px, amplitude_dn). A
     folder already holding a complete render (marker file written last) is reused as is.
     Widths in pixels, brightness in grey levels (DN).

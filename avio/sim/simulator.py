@@ -1,14 +1,14 @@
 """The KITTI-like simulator: a drive whose truth (trajectory, IMU biases, calibration) is known.
 
 ``simulate(config, seed)`` is a pure function of its arguments. It builds a car-like trajectory
-(avio.trajectory), synthesises the 100 Hz IMU from it exactly (PAPER.md §2):
+(avio.sim.trajectory), synthesises the 100 Hz IMU from it exactly (docs/model.md, Eq. 10):
 
     a_m = R_world_imu^T (a_world - g_world) + b_a + n_a,    w_m = w + b_g + n_g,
 
 with white noise of standard deviation ``density / sqrt(dt)`` and biases that random-walk with
 ``walk * sqrt(dt)`` per sample, draws a truth calibration near the KITTI 2011_10_03 reference,
 lines the road with landmarks and projects them through the truth camera into triplet tracks
-(avio.camera_sim) or renders grayscale images (avio.render).
+(avio.sim.camera) or renders grayscale images (avio.sim.render).
 
 Random streams: one ``numpy.random.SeedSequence(seed)`` is split into independent children for
 the trajectory, the calibration error, the IMU, the landmarks, the tracks and the images, so
@@ -49,7 +49,7 @@ class SimulatorError(ValueError):
 class SimConfig:
     """Everything a simulated drive depends on, besides the seed.
 
-    trajectory: one of avio.trajectory.KINDS; duration_s, seconds; speed_mps: mean speed (the
+    trajectory: one of avio.sim.trajectory.KINDS; duration_s, seconds; speed_mps: mean speed (the
         drive is ``speed_mps * duration_s`` metres); n_stops: exact stops (None: kind default).
     imu_rate_hz, camera_rate_hz: sample rates; frames and IMU both start at t = 0.
     imu_noise_on: white noise and bias random walks on/off; imu_noise: their densities (also
@@ -59,7 +59,7 @@ class SimConfig:
     pixel_noise_px: Gaussian pixel noise; outlier_fraction: share of wrong matches per triplet;
         max_features: features per triplet (bucketing), None for all.
     pixel_noise_per_triplet: the pixel noise drawn afresh for every triplet instead of once per
-        observation (avio.camera_sim.simulate_tracks: overlapping triplets then share no noise;
+        observation (avio.sim.camera.simulate_tracks: overlapping triplets then share no noise;
         a diagnostic of the filter's independence assumption, studies/objective/likelihood_tilt.py).
     time_offset_s: the truth camera's clock offset (frame stamped t exposed at IMU time t + offset).
     calibration_error: "realistic" (drawn from the seed: N(0, sizes[0]) px on fx, fy,

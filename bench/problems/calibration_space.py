@@ -3,7 +3,7 @@
 - ``paper``: the paper's 10 variables with its Table 1 bounds: fx, fy, cx, cy (px),
   ZYX Euler angles roll, pitch, yaw (deg, ``R_cam_imu = Rz(yaw) Ry(pitch) Rx(roll)``, Eq. 9)
   and the camera origin in the IMU frame tx, ty, tz (m, Eq. 10). Near pitch = -90 deg only
-  roll + yaw is well determined (gimbal lock, PAPER.md §6).
+  roll + yaw is well determined (gimbal lock, docs/model.md, Eq. 4).
 - ``local``: well conditioned: the same intrinsics, a small rotation vector ``rx, ry, rz``
   (deg, in the camera frame: ``R_cam_imu = Exp(r) R_nominal``) and a translation offset
   ``dx, dy, dz`` (m) around a nominal calibration (the reference).

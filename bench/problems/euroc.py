@@ -1,4 +1,4 @@
-"""``problem=euroc``: EuRoC MAV "Vicon Room 1 01", all real (avio/euroc.py): 200 Hz IMU with its
+"""``problem=euroc``: EuRoC MAV "Vicon Room 1 01", all real (avio/datasets/euroc.py): 200 Hz IMU with its
 Kalibr noise densities, real feature tracks, motion-capture truth; the Kalibr calibration is
 the trusted reference.
 
@@ -53,8 +53,8 @@ class EurocParams(VioParams):
     drives: calibration windows [t_first_s, t_last_s] (seconds from t0, inside 0-30);
     holdout: the held-out window or None; data_seed: which tracks are kept per triplet when
     max_features is set (>= 0); max_features: tracks per triplet (None: all, ~23);
-    gyro_bias_init / accel_bias_init: the filter's initial biases (avio.euroc.load_euroc);
-    nominal_perturbation: nominal = Kalibr + this (avio.kitti00.CalibrationPerturbation fields).
+    gyro_bias_init / accel_bias_init: the filter's initial biases (avio.datasets.euroc.load_euroc);
+    nominal_perturbation: nominal = Kalibr + this (avio.calibration.CalibrationPerturbation fields).
     """
 
     filter_defaults = {"min_parallax_m": 0.005, "stationary_imu_variance_ratio": None}

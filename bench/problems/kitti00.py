@@ -1,5 +1,5 @@
 """``problem=kitti00`` and ``problem=kitti00_tracks``: KITTI sequence 00 with its real 100 Hz IMU
-and GPS/INS ground truth (avio/kitti00.py).
+and GPS/INS ground truth (avio/datasets/kitti00.py).
 
 - ``kitti00``: the camera is simulated through the ground-truth poses with a known truth
   calibration (the rectified KITTI calibration plus ``truth_perturbation``): real IMU and
@@ -85,10 +85,10 @@ def _check_windows(data_dir, windows: dict) -> None:
 @dataclass(frozen=True)
 class Kitti00Params(VioParams):
     """data_dir: null = $AVIO_DATA or ../shared/data; drives: calibration windows (names of
-    avio.kitti00.WINDOWS or [first, last]); holdout: the held-out window or None; data_seed: the
+    avio.datasets.kitti00.WINDOWS or [first, last]); holdout: the held-out window or None; data_seed: the
     simulated camera's noise and outliers (>= 0); pixel_noise_px, outlier_fraction, max_features:
     the simulated camera; truth_perturbation: truth = rectified KITTI + this
-    (avio.kitti00.CalibrationPerturbation fields)."""
+    (avio.calibration.CalibrationPerturbation fields)."""
 
     data_dir: str | None = None
     drives: tuple = ("paper_540m",)

@@ -1,6 +1,6 @@
 """``problem=kitti_raw``: any synced KITTI raw drive (``path=.../<date>_drive_<nnnn>_sync``):
 OXTS truth and IMU, the calib files' reference calibration, grayscale image_00 tracked once by
-the KLT front end (avio/frontend.py) and cached under ``cache_dir``. The truth calibration is
+the KLT front end (avio/frontend/klt.py) and cached under ``cache_dir``. The truth calibration is
 unknown (no calibration errors are reported)."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
 @dataclass(frozen=True)
 class KittiRawParams(VioParams):
     """path: the drive folder (required); calib_dir: null = the drive folder's parent (the KITTI
-    layout); cache_dir: the front end's cache; frontend: avio.frontend.FrontendConfig settings."""
+    layout); cache_dir: the front end's cache; frontend: avio.frontend.klt.FrontendConfig settings."""
 
     path: str | None = None
     calib_dir: str | None = None

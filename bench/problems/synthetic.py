@@ -44,7 +44,7 @@ def _sim_config(drive: str, sim: dict | None):
 
 @dataclass(frozen=True)
 class SyntheticParams(VioParams):
-    """drives: the calibration drives (presets of avio.simulator.SimConfig: paper_540m = ~540 m
+    """drives: the calibration drives (presets of avio.sim.simulator.SimConfig: paper_540m = ~540 m
     in 78 s, flat city with a stop; paper_928m = ~928 m in 115 s with hills), all of one camera;
     holdout: the held-out preset or None; data_seed: the camera and the drives (>= 0);
     sim: SimConfig overrides for every drive, e.g. {pixel_noise_px: 1.0}; noise_realisations:

@@ -21,7 +21,7 @@ units): finite, worse than any regular value, worse the earlier it diverged.
 Beside f, every evaluation reports, uncharged: both objectives, the trajectory errors, the
 drift (avio.metrics.drift_metrics: KITTI t_rel/r_rel, per-metre drift, the largest one-frame
 jump), the filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
-reference such as Kalibr) when the source knows one (avio.calibration_error).
+reference such as Kalibr) when the source knows one (avio.calibration).
 """
 
 from __future__ import annotations
@@ -128,7 +128,7 @@ class VioParams:
         around the source's nominal calibration, intrinsics range from that nominal).
     with_time_offset: add the camera-IMU time offset td (s) as a variable.
     bounds: {variable: [lower, upper]} overrides.
-    filter: FilterConfig overrides (avio/filter.py), e.g. {pixel_sigma_px: 0.5}, over the
+    filter: FilterConfig overrides (avio/filter/config.py), e.g. {pixel_sigma_px: 0.5}, over the
         source's ``filter_defaults``.
     divergence_penalty_m: objective of a diverged filter, ``penalty * (2 - k_div / N)``, in the
         objective's units (> 0).

@@ -4,7 +4,7 @@ Every figure is embedded as base64 PNG data, the style sheet and the few lines o
 inline; the page loads nothing from the network or the disk. Tables sort by a click on their
 header. On load, the script writes into ``<div id="check">`` how many images decoded and which
 sections are present (``data-images-loaded``, ``data-images-total``, ``data-sections``), which a
-headless browser's ``--dump-dom`` reveals (``tests/bench/test_report_html.py``).
+headless browser's ``--dump-dom`` reveals (``tests/bench/report/test_report_vio.py``).
 
 Same inputs, same bytes: nothing here depends on the time, the machine or the folder.
 """

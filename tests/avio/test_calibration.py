@@ -1,4 +1,4 @@
-"""The ray error (avio.calibration_error.ray_error_deg): what the images see of a calibration error."""
+"""The ray error (avio.calibration.ray_error_deg): what the images see of a calibration error."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ is simulated (``data_label``).
 
 from __future__ import annotations
 
-PAPER_TABLE23 = {  # (drive, state) -> {method: (rmse, mean, std)}, PAPER.md §5
+PAPER_TABLE23 = {  # (drive, state) -> {method: (rmse, mean, std)}, the paper's Tables 2-3
     ("540m", "position"): {"VIO reference": (4.8944, 2.3549, 1.1641), "AVIO": (2.0736, 1.7936, 0.8551)},
     ("540m", "velocity"): {"VIO reference": (0.5281, 0.4598, 0.1705), "AVIO": (0.1513, 0.1472, 0.1368)},
     ("540m", "attitude"): {"VIO reference": (2.3558, 0.6493, 1.1323), "AVIO": (1.9108, 0.5101, 1.0023)},

@@ -227,5 +227,5 @@ def test_real_level_frame_fields_and_the_vl_sign_quirk(raw_dir):
     np.testing.assert_allclose(w, packets[:, [F["wf"], F["wl"], F["wu"]]], atol=1e-4)
     v_level = np.einsum("nji,nj->ni", R_level, v)
     np.testing.assert_allclose(v_level[:, 0], packets[:, F["vf"]], atol=1e-3)
-    # vl is the rightward, not leftward, component in these files (documented in avio.oxts).
+    # vl is the rightward, not leftward, component in these files (documented in avio.datasets.oxts).
     np.testing.assert_allclose(v_level[:, 1], -packets[:, F["vl"]], atol=0.05)

@@ -1,4 +1,4 @@
-"""The threaded filter kernel (avio/_kernels.py: run_filters, a batch split over threads) gives
+"""The threaded filter kernel (avio/filter/kernels.py: run_filters, a batch split over threads) gives
 the same bits whatever the batch size and thread count, and the same bits as the serial kernel
 it replaced (commit 958a2e6, kept verbatim in tests/avio/filter/reference_kernel_958a2e6.py): every
 FilterResult array, divergence decisions and innovation statistics included."""

@@ -199,7 +199,7 @@ def test_kitti00_paper_window_with_truth_calibration(shared_data):
     assert f[1] > f[0]
 
 
-# --- The compiled per-filter steps (avio/_kernels.py) against their numpy definitions. ---
+# --- The compiled per-filter steps (avio/filter/kernels.py, update.py) against their numpy definitions. ---
 
 
 def _spd(rng, d):
@@ -292,7 +292,7 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     r[3] += 40.0  # an outlier
     valid = np.ones(F, bool)
     valid[7] = False
-    # The kernels take features last (avio/outliers.py): r (m, F), H (m, d, F), Rm (m, m, F).
+    # The kernels take features last (avio/filter/outliers.py): r (m, F), H (m, d, F), Rm (m, m, F).
     lanes = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1))
     B, z, logdet = np.empty((m, d, F)), np.empty((m, F)), np.empty(F)
     feature_innovations(lanes(r), lanes(H), Sig, lanes(Rm), B, z, logdet)

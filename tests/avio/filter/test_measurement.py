@@ -55,7 +55,7 @@ def test_triplet_jacobian_matches_finite_differences():
 
 
 def test_the_filter_path_without_the_unused_sampson_distance_keeps_the_other_rows():
-    # avio/_kernels.py measures with pair23=False (the update uses residuals 0, 2, 3): the other
+    # avio/filter/update.py measures with pair23=False (the update uses residuals 0, 2, 3): the other
     # rows must be the very same bits, and row 1 zero.
     from avio.filter.measurement import feature_residuals, rot_t
 

@@ -38,7 +38,7 @@ def test_paper_space_reference_matches_table1():
 
 
 def test_paper_pso_ga_point_is_0_23_deg_from_the_reference():
-    """PAPER.md §6: 12.8 deg apart per angle, 0.23 deg apart as rotations (gimbal lock)."""
+    """docs/model.md, Eq. 4 (gimbal lock): 12.8 deg apart per angle, 0.23 deg apart as rotations (gimbal lock)."""
     cs = make_calibration_space("paper", kitti_2011_10_03_calibration())
     psoga = np.array([v[3] for v in PAPER_TABLE1.values()])
     cal = cs.decode(np.stack([cs.space.reference, psoga]))
