@@ -1,4 +1,4 @@
-"""The KITTI 2011_10_03 calibration (the paper's reference) and the paper's Table 1.
+"""The KITTI 2011_10_03 calibration (the paper's reference) and the values the paper reports (Tables 1-3).
 
 The matrices are the published KITTI raw calibration of 2011_10_03 (calib_imu_to_velo,
 calib_velo_to_cam, calib_cam_to_cam); ../shared/data/README.md lists them.
@@ -66,4 +66,14 @@ PAPER_TABLE1 = {
     "tx": (1.1022, 0.8, 1.3, 1.0169),
     "ty": (-0.3191, -0.5, -0.1, -0.2687),
     "tz": (0.7461, 0.5, 1.0, 0.7957),
+}
+
+# The paper's Tables 2-3: (drive, state) -> {method: (rmse, mean, std)}; metres, m/s, degrees.
+PAPER_TABLE23 = {
+    ("540m", "position"): {"VIO reference": (4.8944, 2.3549, 1.1641), "AVIO": (2.0736, 1.7936, 0.8551)},
+    ("540m", "velocity"): {"VIO reference": (0.5281, 0.4598, 0.1705), "AVIO": (0.1513, 0.1472, 0.1368)},
+    ("540m", "attitude"): {"VIO reference": (2.3558, 0.6493, 1.1323), "AVIO": (1.9108, 0.5101, 1.0023)},
+    ("928m", "position"): {"VIO reference": (27.3307, 18.3963, 7.2341), "AVIO": (19.8791, 12.6847, 2.3142)},
+    ("928m", "velocity"): {"VIO reference": (1.5723, 0.9824, 0.9876), "AVIO": (1.0134, 0.7925, 0.6541)},
+    ("928m", "attitude"): {"VIO reference": (2.2124, 1.2344, 1.9856), "AVIO": (1.3482, 0.9821, 1.4422)},
 }

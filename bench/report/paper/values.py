@@ -11,14 +11,8 @@ is simulated (``data_label``).
 
 from __future__ import annotations
 
-PAPER_TABLE23 = {  # (drive, state) -> {method: (rmse, mean, std)}, the paper's Tables 2-3
-    ("540m", "position"): {"VIO reference": (4.8944, 2.3549, 1.1641), "AVIO": (2.0736, 1.7936, 0.8551)},
-    ("540m", "velocity"): {"VIO reference": (0.5281, 0.4598, 0.1705), "AVIO": (0.1513, 0.1472, 0.1368)},
-    ("540m", "attitude"): {"VIO reference": (2.3558, 0.6493, 1.1323), "AVIO": (1.9108, 0.5101, 1.0023)},
-    ("928m", "position"): {"VIO reference": (27.3307, 18.3963, 7.2341), "AVIO": (19.8791, 12.6847, 2.3142)},
-    ("928m", "velocity"): {"VIO reference": (1.5723, 0.9824, 0.9876), "AVIO": (1.0134, 0.7925, 0.6541)},
-    ("928m", "attitude"): {"VIO reference": (2.2124, 1.2344, 1.9856), "AVIO": (1.3482, 0.9821, 1.4422)},
-}
+from avio.reference import PAPER_TABLE1, PAPER_TABLE23  # the values live beside the paper's reference calibration
+
 PAPER_DATA = "paper: real KITTI drive (real camera and IMU, GPS/INS truth)"
 
 # Our stand-ins for the paper's drives, by name (simulator presets and kitti00 windows of the
@@ -66,3 +60,5 @@ def paper_drive(problem_config: dict, which: str) -> str | None:
 def data_label(problem_name: str) -> str:
     """What is real and what is simulated in our problem's data, in words."""
     return _DATA.get(problem_name, f"ours: problem {problem_name}")
+
+__all__ = ["PAPER_DATA", "PAPER_TABLE1", "PAPER_TABLE23", "data_label", "paper_drive", "table1_applies"]
