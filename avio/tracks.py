@@ -43,7 +43,7 @@ def _validated(frame_index, track_id, uv_px, n_frames):
     return frame_index.astype(np.int64), track_id.astype(np.int64), uv_px
 
 
-def _rank_in_groups(sorted_group: np.ndarray) -> np.ndarray:
+def rank_in_groups(sorted_group: np.ndarray) -> np.ndarray:
     """(c,) position of each element within its run of equal values (input sorted by group)."""
     c = len(sorted_group)
     if c == 0:
@@ -81,12 +81,12 @@ def bucket_select(
     group = triplet * n_cells + cell
     order = np.argsort(group * c + rng.permutation(c), kind="stable")
     rank = np.empty(c, np.int64)
-    rank[order] = _rank_in_groups(group[order])
+    rank[order] = rank_in_groups(group[order])
     # A random order of the cells per triplet sets which cell goes first in every round.
     cell_rank = np.argsort(rng.random((int(triplet.max()) + 1, n_cells)), axis=1).argsort(axis=1)
     order = np.argsort((triplet * (rank.max() + 1) + rank) * n_cells + cell_rank[triplet, cell], kind="stable")
     chosen = np.zeros(c, bool)
-    chosen[order] = _rank_in_groups(triplet[order]) < max_features
+    chosen[order] = rank_in_groups(triplet[order]) < max_features
     return chosen
 
 
@@ -144,7 +144,7 @@ def triplets_from_observations(
         triplet, uv3, ids = triplet[keep], uv3[keep], ids[keep]
     slot_order = np.lexsort((ids, triplet))
     triplet, uv3, ids = triplet[slot_order], uv3[slot_order], ids[slot_order]
-    slot = _rank_in_groups(triplet)
+    slot = rank_in_groups(triplet)
     n_feat = int(slot.max()) + 1 if len(slot) else 0
     out_uv = np.zeros((n_trip, n_feat, 3, 2))
     valid = np.zeros((n_trip, n_feat), bool)

@@ -58,13 +58,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pandas as pd
-import yaml
 from scipy.spatial.transform import Rotation
 
 from avio.calibration import Calibration, CalibrationPerturbation
 from avio.datasets._io import DatasetError, check_increasing, read_numeric_table, with_content_hash
-from avio.sequence import GroundTruth, ImuNoise, ImuSamples, Sequence
+from avio.datasets.eqvio import meta_float, read_eqvio_csv
+from avio.datasets.kalibr import read_camchain, read_imu_noise
+from avio.sequence import GroundTruth, ImuNoise, ImuSamples, Sequence, TripletTracks
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "euroc_v1_01"
 FEATURES_FILE = "eqvio_processed_30s.csv"
@@ -74,8 +74,6 @@ IMU_CHAIN_FILE = "kalibr_imu_chain.yaml"
 #: |g| in the Vicon room (Zurich 9.807; the EuRoC tools use 9.81), m/s^2.
 GRAVITY_MPS2 = 9.81
 GT_COLUMNS = 17  # time, p(3), q(4), v(3), bg(3), ba(3)
-_FEATURE_COLUMNS = {"imu": ("t_abs", "gx", "gy", "gz", "ax", "ay", "az"),
-                    "vision_feature": ("t_abs", "frame_idx", "landmark_id", "u_norm", "v_norm")}
 
 
 class EurocDataError(DatasetError):
@@ -84,129 +82,6 @@ class EurocDataError(DatasetError):
 
 
 # ---------------------------------------------------------------- file readers
-
-
-def read_kalibr_yaml(path: str | Path) -> dict:
-    """A Kalibr/OpenCV yaml file as a dict (its ``%YAML:1.0`` directive, which PyYAML rejects,
-    is dropped)."""
-    path = Path(path)
-    if not path.is_file():
-        raise EurocDataError(f"{path}: file not found")
-    text = path.read_text()
-    if text.startswith("%YAML:"):
-        text = "#" + text  # a comment keeps the line numbers of the errors right
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        raise EurocDataError(f"{path}{where}: not valid YAML ({getattr(err, 'problem', err)})") from None
-    if not isinstance(data, dict):
-        raise EurocDataError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
-    return data
-
-
-def _get(data: dict, keys: tuple[str, ...], path: Path):
-    node = data
-    for i, key in enumerate(keys):
-        if not isinstance(node, dict) or key not in node:
-            raise EurocDataError(f"{path}: missing key {'.'.join(keys[:i + 1])}")
-        node = node[key]
-    return node
-
-
-def _numbers(value, shape: tuple[int, ...], keys: tuple[str, ...], path: Path) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise EurocDataError(f"{path}: {'.'.join(keys)} is not numeric: {value!r}") from None
-    if array.shape != shape or not np.all(np.isfinite(array)):
-        raise EurocDataError(
-            f"{path}: {'.'.join(keys)} must be {shape} finite numbers, got {array.shape}: {value!r}"
-        )
-    return array
-
-
-def read_camchain(path: str | Path, camera: str = "cam0") -> tuple[Calibration, tuple[int, int]]:
-    """``(calibration (batch of 1, time offset 0), image size (width, height) px)`` of
-    ``camera`` in a Kalibr ``imucam_chain`` yaml: ``R_cam_imu = R_imu_cam^T``, ``p_imu_cam`` =
-    the translation of ``T_imu_cam`` (which maps camera-frame points into the IMU frame)."""
-    path = Path(path)
-    data = read_kalibr_yaml(path)
-    T = _numbers(_get(data, (camera, "T_imu_cam"), path), (4, 4), (camera, "T_imu_cam"), path)
-    fx, fy, cx, cy = _numbers(_get(data, (camera, "intrinsics"), path), (4,), (camera, "intrinsics"), path)
-    width, height = _numbers(_get(data, (camera, "resolution"), path), (2,), (camera, "resolution"), path)
-    R_imu_cam = T[:3, :3]
-    if abs(np.linalg.det(R_imu_cam) - 1.0) > 1e-5 or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise EurocDataError(f"{path}: {camera}.T_imu_cam is not a rigid transform "
-                             f"(det {np.linalg.det(R_imu_cam):.6f}, last row {T[3]})")
-    # The file gives 12 digits; project onto SO(3) so that R^T R = I to machine precision.
-    R_cam_imu = Rotation.from_matrix(R_imu_cam.T).as_matrix()
-    return Calibration.single(fx, fy, cx, cy, R_cam_imu, T[:3, 3]), (int(width), int(height))
-
-
-def read_imu_noise(path: str | Path, imu: str = "imu0") -> ImuNoise:
-    """The Kalibr noise figures of ``imu`` (continuous-time densities, used as they are)."""
-    path = Path(path)
-    data = read_kalibr_yaml(path)
-    keys = {"accel_noise": "accelerometer_noise_density", "gyro_noise": "gyroscope_noise_density",
-            "accel_bias_walk": "accelerometer_random_walk", "gyro_bias_walk": "gyroscope_random_walk"}
-    values = {}
-    for field_name, key in keys.items():
-        value = float(_numbers(_get(data, (imu, key), path), (), (imu, key), path))
-        if value <= 0:
-            raise EurocDataError(f"{path}: {imu}.{key} must be > 0, got {value}")
-        values[field_name] = value
-    return ImuNoise(**values)
-
-
-def _numeric_column(frame: pd.DataFrame, column: str, path: Path) -> np.ndarray:
-    """(rows,) float values of ``column``; the first missing or non-numeric one is an error
-    naming its line (pandas index + 2: the header is line 1 and blank lines are kept)."""
-    values = pd.to_numeric(frame[column], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        i = frame.index[bad[0]]
-        raise EurocDataError(f"{path}:{i + 2}: {frame['row_type'].iloc[bad[0]]} row has no valid "
-                             f"{column} ({frame[column].iloc[bad[0]]!r})")
-    return values
-
-
-def _read_features(path: Path) -> tuple[dict, dict]:
-    """``(columns per row type, meta key -> value)`` of the eqvio CSV (see module doc)."""
-    if not path.is_file():
-        raise EurocDataError(f"{path}: file not found")
-    try:
-        table = pd.read_csv(path, dtype=str, skip_blank_lines=False, keep_default_na=False)
-    except (pd.errors.ParserError, UnicodeDecodeError) as err:
-        raise EurocDataError(f"{path}: not a readable CSV ({err})") from None
-    needed = {"row_type", "key", "value", *(c for cols in _FEATURE_COLUMNS.values() for c in cols)}
-    missing = sorted(needed - set(table.columns))
-    if missing:
-        raise EurocDataError(f"{path}:1: header lacks columns {missing}")
-    table = table.replace("", np.nan)
-    columns = {}
-    for row_type, names in _FEATURE_COLUMNS.items():
-        rows = table[table["row_type"] == row_type]
-        if rows.empty:
-            raise EurocDataError(f"{path}: no {row_type!r} rows")
-        columns[row_type] = {c: _numeric_column(rows, c, path) for c in names}
-        columns[row_type]["line"] = rows.index.to_numpy() + 2
-    meta_rows = table[table["row_type"] == "meta"]
-    meta = dict(zip(meta_rows["key"], meta_rows["value"]))
-    return columns, meta
-
-
-def _meta_float(meta: dict, key: str, path: Path) -> float:
-    try:
-        value = float(meta[key])
-    except KeyError:
-        raise EurocDataError(f"{path}: no meta row {key!r}") from None
-    except (TypeError, ValueError):
-        raise EurocDataError(f"{path}: meta row {key!r} is not a number: {meta[key]!r}") from None
-    if not np.isfinite(value):
-        raise EurocDataError(f"{path}: meta row {key!r} is not finite: {meta[key]!r}")
-    return value
 
 
 @dataclass(frozen=True, eq=False)  # identity hash: memoised, and arrays are unhashable
@@ -262,12 +137,12 @@ def read_euroc(data_dir: str | Path = DEFAULT_DATA_DIR, gt_tolerance_s: float = 
 
 @lru_cache(maxsize=2)
 def _read_euroc(data_dir: Path, signature: tuple, gt_tolerance_s: float) -> EurocRaw:
-    calibration, image_size = read_camchain(data_dir / CAMCHAIN_FILE)
-    imu_noise = read_imu_noise(data_dir / IMU_CHAIN_FILE)
+    calibration, image_size = read_camchain(data_dir / CAMCHAIN_FILE, error=EurocDataError)
+    imu_noise = read_imu_noise(data_dir / IMU_CHAIN_FILE, error=EurocDataError)
     path = data_dir / FEATURES_FILE
-    columns, meta = _read_features(path)
-    t0 = _meta_float(meta, "t0_abs", path)
-    meta_K = [_meta_float(meta, f"camera_{k}", path) for k in ("fx", "fy", "cx", "cy")]
+    columns, meta = read_eqvio_csv(path, EurocDataError)
+    t0 = meta_float(meta, "t0_abs", path, EurocDataError)
+    meta_K = [meta_float(meta, f"camera_{k}", path, EurocDataError) for k in ("fx", "fy", "cx", "cy")]
     yaml_K = [calibration.fx_px[0], calibration.fy_px[0], calibration.cx_px[0], calibration.cy_px[0]]
     if not np.allclose(meta_K, yaml_K, rtol=0, atol=1e-6):
         raise EurocDataError(f"{path}: the features were undistorted with intrinsics {meta_K} "
@@ -419,21 +294,8 @@ def load_euroc(
     everything a filter run reads. Raises EurocDataError naming the file and line, the key or the
     window, before building.
     """
-    from avio.tracks import TracksError, triplets_from_observations
-
     source = str(Path(data_dir))
-    if isinstance(nominal_perturbation, Mapping):  # e.g. straight from a config file
-        try:
-            nominal_perturbation = CalibrationPerturbation(**nominal_perturbation)
-        except TypeError as err:
-            raise EurocDataError(f"nominal_perturbation: {err}") from None
-    if gyro_bias_init not in ("ground_truth", "standstill", "zero"):
-        raise EurocDataError(f"gyro_bias_init must be 'ground_truth', 'standstill' or 'zero', "
-                             f"got {gyro_bias_init!r}")
-    if accel_bias_init not in ("ground_truth", "zero"):
-        raise EurocDataError(f"accel_bias_init must be 'ground_truth' or 'zero', got {accel_bias_init!r}")
-    if max_features is not None and max_features < 1:
-        raise EurocDataError(f"max_features must be >= 1 or None, got {max_features}")
+    nominal_perturbation = _checked_options(nominal_perturbation, gyro_bias_init, accel_bias_init, max_features)
     raw = read_euroc(data_dir)
     first, last = _window(raw, float(t_first_s), float(t_last_s), frame_tolerance_s, source)
     s = slice(first, last + 1)
@@ -452,16 +314,8 @@ def load_euroc(
                              min_standstill_s, meta, source)
     b_a = raw.gt_accel_bias_mps2[first].copy() if accel_bias_init == "ground_truth" else None
 
-    keep = (raw.obs_frame >= first) & (raw.obs_frame <= last)
+    tracks = _window_tracks(raw, first, last, max_features, seed, Path(data_dir) / FEATURES_FILE)
     cal = raw.calibration
-    uv = raw.obs_xy_norm[keep] * [cal.fx_px[0], cal.fy_px[0]] + [cal.cx_px[0], cal.cy_px[0]]
-    try:
-        tracks = triplets_from_observations(
-            raw.obs_frame[keep] - first, raw.obs_landmark[keep], uv, last - first + 1,
-            max_features=max_features, rng=np.random.default_rng(seed), image_size_px=raw.image_size_px,
-        )
-    except TracksError as err:
-        raise EurocDataError(f"{Path(data_dir) / FEATURES_FILE}: {err}") from err
     reference, truth_cal = cal[0], None
     if nominal_perturbation is not None:
         reference, truth_cal = nominal_perturbation.apply(cal), cal[0]
@@ -473,6 +327,41 @@ def load_euroc(
         initial_gyro_bias_radps=b_g, initial_accel_bias_mps2=b_a, meta=meta,
     )
     return _with_hash(seq)
+
+
+def _checked_options(nominal_perturbation, gyro_bias_init: str, accel_bias_init: str,
+                     max_features: int | None) -> CalibrationPerturbation | None:
+    """``load_euroc``'s options checked (EurocDataError), and the nominal perturbation as the class."""
+    if isinstance(nominal_perturbation, Mapping):  # e.g. straight from a config file
+        try:
+            nominal_perturbation = CalibrationPerturbation(**nominal_perturbation)
+        except TypeError as err:
+            raise EurocDataError(f"nominal_perturbation: {err}") from None
+    if gyro_bias_init not in ("ground_truth", "standstill", "zero"):
+        raise EurocDataError(f"gyro_bias_init must be 'ground_truth', 'standstill' or 'zero', "
+                             f"got {gyro_bias_init!r}")
+    if accel_bias_init not in ("ground_truth", "zero"):
+        raise EurocDataError(f"accel_bias_init must be 'ground_truth' or 'zero', got {accel_bias_init!r}")
+    if max_features is not None and max_features < 1:
+        raise EurocDataError(f"max_features must be >= 1 or None, got {max_features}")
+    return nominal_perturbation
+
+
+def _window_tracks(raw: EurocRaw, first: int, last: int, max_features: int | None, seed: int,
+                   features_path: Path) -> TripletTracks:
+    """The tracks over the triplets of frames first..last, in pixels (Kalibr intrinsics)."""
+    from avio.tracks import TracksError, triplets_from_observations
+
+    keep = (raw.obs_frame >= first) & (raw.obs_frame <= last)
+    cal = raw.calibration
+    uv = raw.obs_xy_norm[keep] * [cal.fx_px[0], cal.fy_px[0]] + [cal.cx_px[0], cal.cy_px[0]]
+    try:
+        return triplets_from_observations(
+            raw.obs_frame[keep] - first, raw.obs_landmark[keep], uv, last - first + 1,
+            max_features=max_features, rng=np.random.default_rng(seed), image_size_px=raw.image_size_px,
+        )
+    except TracksError as err:
+        raise EurocDataError(f"{features_path}: {err}") from err
 
 
 def _initial_gyro_bias(raw: EurocRaw, imu: ImuSamples, first: int, last: int, mode: str,

@@ -269,51 +269,6 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J, G):
-    for i in range(R12.shape[0]):
-        R23 = np.empty((3, 3))
-        for a in range(3):
-            for b in range(3):
-                R23[a, b] = R12[i, 0, a] * R13[i, 0, b] + R12[i, 1, a] * R13[i, 1, b] + R12[i, 2, a] * R13[i, 2, b]
-        d = t13[i] - t12[i]
-        t23 = rot_t(R12[i], (d[0], d[1], d[2]))
-        a12 = (t12[i, 0], t12[i, 1], t12[i, 2])
-        a13 = (t13[i, 0], t13[i, 1], t13[i, 2])
-        for f in range(uv_px.shape[0]):
-            feature_residuals(uv_px[f], R12[i], a12, R13[i], a13, R23, t23, fx[i], fy[i], cx[i], cy[i],
-                              r[i, f], J[i, f], G[i, f])
-
-
-def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, with_pixel_jacobian: bool = False):
-    """Innovations (n, F, 4) pixels and Jacobians (n, F, 4, 12) of F features (uv_px (F, 3, 2),
-    shared by the batch) for n filters' relative poses R12, R13 (n, 3, 3), t12, t13 (n, 3) and
-    intrinsics (n,); :func:`feature_residuals` per feature (what the filter's update runs).
-    ``with_pixel_jacobian`` also returns G (n, F, 4, 6), d residuals / d pixels."""
-    if uv_px.ndim != 3 or uv_px.shape[1:] != (3, 2):
-        raise MeasurementError(f"triplet_residuals: uv_px must be (F, 3, 2) pixels, got {uv_px.shape}")
-    n, F = R12.shape[0], uv_px.shape[0]
-    r = np.empty((n, F, 4))
-    J = np.empty((n, F, 4, 12))
-    G = np.empty((n, F, 4, 6))
-    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
-    _triplet_residuals(f64(uv_px), f64(R12), f64(t12), f64(R13), f64(t13), f64(fx), f64(fy), f64(cx), f64(cy),
-                       r, J, G)
-    return (r, J, G) if with_pixel_jacobian else (r, J)
-
-
-def relative_poses(Rc, pc):
-    """Camera poses of the triplet -> ``(R12, t12, R13, t13)`` (docs/model.md, Eq. 21).
-
-    Rc (3, n, 3, 3) ``R_world_cam`` and pc (3, n, 3) ``p_world_cam`` of images 1, 2, 3.
-    """
-    R1t = np.swapaxes(Rc[0], 1, 2)
-    R12, R13 = R1t @ Rc[1], R1t @ Rc[2]
-    t12 = (R1t @ (pc[1] - pc[0])[..., None])[..., 0]
-    t13 = (R1t @ (pc[2] - pc[0])[..., None])[..., 0]
-    return R12, t12, R13, t13
-
-
-@numba.njit(cache=True, error_model="numpy")
 def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
     """Exposure-time IMU pose of one filter, ``(p + v td, R exp(w td))``, into p3 (3,), R3 (3, 3),
     and its (6, 15) Jacobian J w.r.t. the core error ``[dp, dtheta, dv, db_a, db_g]``

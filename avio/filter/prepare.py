@@ -31,7 +31,7 @@ class _Prepared:
 
 def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     """Everything of the filter that does not depend on the calibration (cache it per sequence)."""
-    from avio.tracks import bucket_select
+    from avio.tracks import bucket_select, rank_in_groups
 
     if sequence.tracks is None:
         raise FilterError(f"sequence {sequence.name!r} has no feature tracks; run the front end first")
@@ -69,11 +69,7 @@ def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
                            sequence.image_size_px, config.bucket_grid)
     trip, feat = trip[chosen], feat[chosen]
     F = config.max_update_features
-    slot = np.zeros(len(trip), np.int64)
-    if len(trip):
-        first = np.r_[True, trip[1:] != trip[:-1]]
-        start = np.maximum.accumulate(np.where(first, np.arange(len(trip)), 0))
-        slot = np.arange(len(trip)) - start
+    slot = rank_in_groups(trip)  # trip is sorted (np.nonzero)
     uv = np.zeros((len(tr.frame_index), F, 3, 2))
     valid = np.zeros((len(tr.frame_index), F), bool)
     uv[trip, slot] = tr.uv_px[trip, feat]

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from avio.sequence import TripletTracks
-from avio.tracks import triplets_from_observations
+from avio.tracks import rank_in_groups, triplets_from_observations
 
 
 class FrontendError(ValueError):
@@ -98,13 +98,6 @@ def read_gray(path: str | Path) -> np.ndarray:
     return image
 
 
-def _rank_in_groups(sorted_group: np.ndarray) -> np.ndarray:
-    """(c,) position of each element within its run of equal values (input sorted by group)."""
-    start = np.r_[True, sorted_group[1:] != sorted_group[:-1]]
-    return np.arange(len(sorted_group)) - np.maximum.accumulate(
-        np.where(start, np.arange(len(sorted_group)), 0))
-
-
 def _cells(uv: np.ndarray, shape: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
     rows, cols = grid
     h, w = shape
@@ -141,7 +134,7 @@ def detect_new(image: np.ndarray, live_uv: np.ndarray, config: FrontendConfig) -
     # goodFeaturesToTrack returns strongest first; a stable sort by cell keeps that order.
     order = np.argsort(cell, kind="stable")
     rank = np.empty(len(cell), np.int64)
-    rank[order] = _rank_in_groups(cell[order])
+    rank[order] = rank_in_groups(cell[order])
     return corners[rank < room[cell]]
 
 

@@ -218,10 +218,7 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
                    noise_seed: int | tuple[int, ...] | None = None) -> tuple[Sequence, SimWorld]:
     """``simulate`` plus the hidden truth (SimWorld) behind the sequence."""
     config.validate()
-    streams = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS))))
-    if noise_seed is not None:  # another measurement realisation of the same world and trajectory
-        noise = dict(zip(_STREAMS, np.random.SeedSequence(noise_seed).spawn(len(_STREAMS))))
-        streams.update({k: noise[k] for k in NOISE_STREAMS})
+    streams = _seed_streams(seed, noise_seed)
     rngs = {k: np.random.default_rng(v) for k, v in streams.items()}
     trajectory = make_trajectory(
         config.trajectory, config.duration_s, config.speed_mps,
@@ -252,20 +249,13 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
             noise_per_triplet=config.pixel_noise_per_triplet,
         )
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
-    config_dict = asdict(config)
-    if not config.pixel_noise_per_triplet:  # absent at its default, so the hashes of existing drives stay
-        del config_dict["pixel_noise_per_triplet"]
     seed_value = _plain_seed(seed)
     noise_value = None if noise_seed is None else _plain_seed(noise_seed)
-    extra = {"config": config_dict, "seed": seed_value}
-    if noise_value is not None:  # absent otherwise, so the hashes of existing drives stay
-        extra["noise_seed"] = noise_value
-    if config.output == "images":
-        from avio.sim.render import RENDER_VERSION, render_frames  # OpenCV only when rendering
-
-        extra["render_version"] = RENDER_VERSION
+    config_dict, extra = _hash_extra(config, seed_value, noise_value)
     data_hash = content_hash(arrays, extra)
     if config.output == "images":
+        from avio.sim.render import render_frames  # OpenCV only when rendering
+
         if image_dir is None:
             raise SimulatorError("SimConfig.output = 'images' needs an image_dir to render into")
 
@@ -299,6 +289,30 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
         },
     )
     return sequence, SimWorld(trajectory, landmarks, b_a, b_g)
+
+
+def _seed_streams(seed, noise_seed) -> dict[str, np.random.SeedSequence]:
+    """One seed sequence per random stream; with ``noise_seed`` the measurement-noise streams from it."""
+    streams = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS))))
+    if noise_seed is not None:  # another measurement realisation of the same world and trajectory
+        noise = dict(zip(_STREAMS, np.random.SeedSequence(noise_seed).spawn(len(_STREAMS))))
+        streams.update({k: noise[k] for k in NOISE_STREAMS})
+    return streams
+
+
+def _hash_extra(config: SimConfig, seed_value, noise_value) -> tuple[dict, dict]:
+    """(the config as the sequence's meta holds it, what the content hash covers besides the arrays)."""
+    config_dict = asdict(config)
+    if not config.pixel_noise_per_triplet:  # absent at its default, so the hashes of existing drives stay
+        del config_dict["pixel_noise_per_triplet"]
+    extra = {"config": config_dict, "seed": seed_value}
+    if noise_value is not None:  # absent otherwise, so the hashes of existing drives stay
+        extra["noise_seed"] = noise_value
+    if config.output == "images":
+        from avio.sim.render import RENDER_VERSION  # OpenCV only when rendering
+
+        extra["render_version"] = RENDER_VERSION
+    return config_dict, extra
 
 
 def simulate(config: SimConfig, seed: int | tuple[int, ...], image_dir: str | Path | None = None,

@@ -103,10 +103,11 @@ class EurocParams(VioParams):
         return default_data_dir(self.data_dir) / FOLDER
 
     def _kalibr(self) -> tuple[Calibration, tuple[int, int]]:
-        from avio.datasets.euroc import CAMCHAIN_FILE, EurocDataError, read_camchain
+        from avio.datasets.euroc import CAMCHAIN_FILE, EurocDataError
+        from avio.datasets.kalibr import read_camchain
 
         try:
-            return read_camchain(self._folder() / CAMCHAIN_FILE)
+            return read_camchain(self._folder() / CAMCHAIN_FILE, error=EurocDataError)
         except EurocDataError as err:
             raise ProblemError(str(err)) from None
 

@@ -98,9 +98,7 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
     key = figure_key("anytime", problem, data.to_csv(index=False), {k: float(v) for k, v in levels.items()})
     if is_current(path, key):
         return Path(path)
-    colors = _colors(list(data["optimizer"].unique()))
-    fig = Figure(figsize=(11, 4.2))
-    axes = fig.subplots(1, 2)
+    colors, fig, axes = _panels_per_axis(data)
     for ax, axis in zip(axes, AXIS_LABELS):
         part = data[data["axis"] == axis]
         for optimizer, g in part.groupby("optimizer", sort=True):
@@ -116,8 +114,20 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
         ax.set_xlabel(AXIS_LABELS[axis])
         ax.set_ylabel("best objective so far (median, IQR)")
         ax.grid(True, which="both", alpha=0.3)
+    return _finish(fig, axes, f"{problem}: anytime performance", path, key)
+
+
+def _panels_per_axis(data: pd.DataFrame):
+    """(a colour per optimiser, a figure, its two panels: against evaluations and against seconds)."""
+    colors = _colors(list(data["optimizer"].unique()))
+    fig = Figure(figsize=(11, 4.2))
+    return colors, fig, fig.subplots(1, 2)
+
+
+def _finish(fig, axes, title: str, path: Path, key: str) -> Path:
+    """Legend (or notes), title and margins, then the figure saved with its key."""
     _legend_or_note(axes)
-    fig.suptitle(f"{problem}: anytime performance")
+    fig.suptitle(title)
     fig.subplots_adjust(**MARGINS)
     return save_figure(fig, path, key=key)
 
@@ -160,9 +170,7 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
     key = figure_key("ecdf", problem, data.to_csv(index=False))
     if is_current(path, key):
         return Path(path)
-    colors = _colors(list(data["optimizer"].unique()))
-    fig = Figure(figsize=(11, 4.2))
-    axes = fig.subplots(1, 2)
+    colors, fig, axes = _panels_per_axis(data)
     for ax, axis in zip(axes, AXIS_LABELS):
         part = data[data["axis"] == axis]
         for optimizer, g in part.groupby("optimizer", sort=True):
@@ -174,7 +182,4 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
         ax.set_xlabel(AXIS_LABELS[axis])
         ax.set_ylabel("fraction of (run, target) pairs hit")
         ax.grid(True, which="both", alpha=0.3)
-    _legend_or_note(axes)
-    fig.suptitle(f"{problem}: runtime ECDF over all fixed targets")
-    fig.subplots_adjust(**MARGINS)
-    return save_figure(fig, path, key=key)
+    return _finish(fig, axes, f"{problem}: runtime ECDF over all fixed targets", path, key)

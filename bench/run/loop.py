@@ -31,7 +31,6 @@ import logging
 import math
 import os
 import sys
-import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -42,7 +41,6 @@ from typing import Callable
 import numpy as np
 
 from bench.problems.base import Problem
-from bench.provenance import provenance
 from bench.records import (
     JOB_FILE,
     RECORD,
@@ -55,7 +53,9 @@ from bench.records import (
     scan_eval_log,
     write_json_atomic,
 )
-from bench.run.identity import SCHEMA, config_hash, header_mismatch, job_header
+from bench.run.bookkeeping import account, batch_entry, job_record, outcome, problem_fields
+from bench.run.identity import config_hash, header_mismatch, job_header
+from bench.run.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -85,39 +85,6 @@ class Budget:
                                          or not isinstance(self.seconds, (int, float, np.number))
                                          or not (math.isfinite(self.seconds) and self.seconds > 0)):
             raise RunError(f"budget.seconds must be a positive number or null, got {self.seconds!r}")
-
-
-class _Progress:
-    """A tqdm bar per job on stderr: evaluations (of the budget), best f, rate and ETA.
-
-    A timer redraws it every ``every_s`` seconds even while one batch runs long, so no phase
-    of the run loop is silent for longer than that.
-    """
-
-    def __init__(self, label: str, budget: Budget, every_s: float, enabled: bool, initial: int = 0) -> None:
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=budget.evals, initial=initial, desc=label, unit="eval", file=sys.stderr,
-                        disable=not enabled, dynamic_ncols=True, mininterval=min(every_s, 1.0), leave=True)
-        self._stop = threading.Event()
-        self._every_s = every_s
-        self._best_f = None
-        if enabled:
-            threading.Thread(target=self._redraw, daemon=True, name="bench-progress").start()
-
-    def _redraw(self) -> None:
-        while not self._stop.wait(self._every_s):
-            self.bar.refresh()
-
-    def update(self, n: int, best_f: float) -> None:
-        if best_f != self._best_f:  # formatting the postfix costs ~50 us: only when it changes
-            self._best_f = best_f
-            self.bar.set_postfix_str(f"best f {best_f:.6g}", refresh=False)
-        self.bar.update(n)
-
-    def close(self) -> None:
-        self._stop.set()
-        self.bar.close()
 
 
 def run_job(
@@ -173,6 +140,7 @@ def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | No
 
 def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label, progress_every_s,
                 optimizer_class, progress) -> dict:
+    """``run_job`` once the folder is locked: skip a finished job, check the folder, run, write the record."""
     header = job_header(identity, problem, optimizer_class)
     try:
         previous, corrupt_note = _previous_record(job_dir, header)
@@ -181,19 +149,8 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
     if previous is not None:
         log.info("%s: already finished in %s, skipped", label, job_dir)
         return previous
-    try:
-        on_disk = read_job_file(job_dir)
-    except RecordError as err:
-        raise RunError(f"{err}: the log's identity cannot be checked, so it is not resumed") from None
+    on_disk = _job_file_of_this_job(job_dir, header)
     evals_path = job_dir / "evals.jsonl"
-    if on_disk is not None:
-        why = header_mismatch(on_disk, header)
-        if why:
-            raise RunError(f"{job_dir} holds a log of another job: {why}; resuming would mix results "
-                           "(choose another hydra.sweep.dir, or restore the settings)")
-    elif evals_path.exists() and evals_path.stat().st_size:
-        raise RunError(f"{evals_path}: an evaluation log without {JOB_FILE} (written by an older version or "
-                       "another tool) cannot be checked, so it is not resumed; move it away")
 
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     state = {"n_evals": 0, "n_batches": 0, "eval_s": 0.0, "best_f": np.inf, "best_x": None,
@@ -202,11 +159,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
     clock0 = time.perf_counter()
     evals_log, bar = None, None
     try:
-        if corrupt_note:
-            kept = job_dir / f"{RECORD}.corrupt"
-            os.replace(job_dir / RECORD, kept)
-            raise RecordError(f"the previous record was unreadable ({corrupt_note}; kept as {kept.name}); run "
-                              "the job again to resume from its log")
+        _set_aside_corrupt_record(job_dir, corrupt_note)
         optimizer = make_optimizer()
         entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
         if entries:
@@ -222,30 +175,9 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
             write_json_atomic(job_dir / JOB_FILE, header)
         if entries:
             log.info("%s: resumed after %d logged batches (%d evals)", label, len(entries), state["n_evals"])
-        bar = _Progress(label, budget, max(0.5, min(float(progress_every_s), 5.0)), progress, state["n_evals"])
+        bar = Progress(label, budget, max(0.5, min(float(progress_every_s), 5.0)), progress, state["n_evals"])
         clock0 = time.perf_counter() - state["offset_s"]  # after the set-up: wall_s times the loop
-        while stop_reason is None:
-            stop_reason = _budget_stop(budget, state, time.perf_counter() - clock0) or _optimizer_stop(optimizer)
-            if stop_reason is not None:
-                break
-            X = problem.space.check(optimizer.ask())
-            trimmed = budget.evals is not None and state["n_evals"] + len(X) > budget.evals
-            if trimmed:
-                X = X[: budget.evals - state["n_evals"]]
-            t_start = time.perf_counter() - clock0
-            f, metrics = problem.evaluate(X)
-            t_end = time.perf_counter() - clock0
-            f = np.asarray(f, float)
-            if f.shape != (len(X),):
-                raise RunError(f"problem {problem.name!r} returned f of shape {f.shape} for {len(X)} points")
-            entry = _entry(state, X, f, metrics, t_start, t_end)
-            evals_log.append(entry)
-            _account(state, entry)
-            if trimmed:
-                stop_reason = "budget_evals"
-            else:
-                optimizer.tell(X, f)
-            bar.update(len(X), state["best_f"])
+        stop_reason = _run_batches(problem, optimizer, budget, state, evals_log, bar, clock0, stop_reason)
     except RunError as exc:
         if evals_log is None:  # refused before anything was written
             raise
@@ -256,58 +188,87 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
         if bar is not None:
             bar.close()
         if evals_log is not None:
-            try:
-                evals_log.close()
-            except OSError as exc:  # e.g. a full disk: the last flush failed; never hides an earlier error
-                close_error = _error(exc)
-                if error is None:
-                    status, stop_reason, error = "failed", "error", close_error
-                else:
-                    error["also"] = f"closing {evals_path} failed too: {close_error['message']}"
+            status, stop_reason, error = _close_log(evals_log, evals_path, status, stop_reason, error)
     if error is not None:
         log.error("%s failed: %s: %s", label, error["type"], error["message"])
     else:
         log.info("%s: %d evals, best f %.6g, %s", label, state["n_evals"], state["best_f"], stop_reason)
 
-    name = lambda v: v.get("name") if isinstance(v, dict) else v  # noqa: E731 - identity holds names or sections
-    record = {
-        "schema": SCHEMA,
-        "job_key": header["job_key"],
-        "config_hash": header["config_hash"],
-        "identity": identity,
-        "code_version": header["code"],
-        "status": status,
-        "error": error,
-        "problem": name(identity.get("problem")),
-        "optimizer": name(identity.get("optimizer")),
-        "seed": identity.get("seed"),
-        "budget": {"evals": budget.evals, "seconds": budget.seconds},
-        "config": config or {},
-        "space": {
-            "names": list(problem.space.names),
-            "units": list(problem.space.units),
-            "lower": problem.space.lower,
-            "upper": problem.space.upper,
-            "reference": problem.space.reference,
-        },
-        "f_unit": getattr(problem, "f_unit", None),
-        "truth_x": problem.truth,
-        "f_truth": getattr(problem, "f_truth", None),
-        "f_reference": getattr(problem, "f_reference", None),
-        "problem_identity": problem.identity,
-        "best_x": state["best_x"],
-        "best_f": None if not np.isfinite(state["best_f"]) else state["best_f"],
-        "best_metrics": state["best_metrics"],
-        "n_evals": state["n_evals"],
-        "n_batches": state["n_batches"],
-        "wall_s": time.perf_counter() - clock0,
-        "eval_s": state["eval_s"],
-        "stop_reason": stop_reason,
-        "started_utc": started,
-        "ended_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        **provenance(),
-    }
+    record = job_record(
+        identity, header["job_key"], header["config_hash"], header["code"], status, error,
+        {"evals": budget.evals, "seconds": budget.seconds}, config or {}, problem_fields(problem),
+        outcome(state, time.perf_counter() - clock0, stop_reason, started),
+    )
     return _write_record(job_dir, record, error)
+
+
+def _job_file_of_this_job(job_dir: Path, header: dict) -> dict | None:
+    """The folder's ``job.json`` (None when absent) once it is known to be this job's; RunError otherwise."""
+    try:
+        on_disk = read_job_file(job_dir)
+    except RecordError as err:
+        raise RunError(f"{err}: the log's identity cannot be checked, so it is not resumed") from None
+    evals_path = job_dir / "evals.jsonl"
+    if on_disk is not None:
+        why = header_mismatch(on_disk, header)
+        if why:
+            raise RunError(f"{job_dir} holds a log of another job: {why}; resuming would mix results "
+                           "(choose another hydra.sweep.dir, or restore the settings)")
+    elif evals_path.exists() and evals_path.stat().st_size:
+        raise RunError(f"{evals_path}: an evaluation log without {JOB_FILE} (written by an older version or "
+                       "another tool) cannot be checked, so it is not resumed; move it away")
+    return on_disk
+
+
+def _set_aside_corrupt_record(job_dir: Path, corrupt_note: str | None) -> None:
+    """Keep an unreadable previous record as ``record.json.corrupt`` and fail the job with why (RecordError)."""
+    if corrupt_note:
+        kept = job_dir / f"{RECORD}.corrupt"
+        os.replace(job_dir / RECORD, kept)
+        raise RecordError(f"the previous record was unreadable ({corrupt_note}; kept as {kept.name}); run "
+                          "the job again to resume from its log")
+
+
+def _run_batches(problem, optimizer, budget: Budget, state: dict, evals_log: EvalLog, bar: Progress,
+                 clock0: float, stop_reason: str | None) -> str:
+    """Ask, evaluate, log and tell batches until a budget or the optimiser stops; the stop reason."""
+    while stop_reason is None:
+        stop_reason = _budget_stop(budget, state, time.perf_counter() - clock0) or _optimizer_stop(optimizer)
+        if stop_reason is not None:
+            break
+        X = problem.space.check(optimizer.ask())
+        trimmed = budget.evals is not None and state["n_evals"] + len(X) > budget.evals
+        if trimmed:
+            X = X[: budget.evals - state["n_evals"]]
+        t_start = time.perf_counter() - clock0
+        f, metrics = problem.evaluate(X)
+        t_end = time.perf_counter() - clock0
+        f = np.asarray(f, float)
+        if f.shape != (len(X),):
+            raise RunError(f"problem {problem.name!r} returned f of shape {f.shape} for {len(X)} points")
+        entry = batch_entry(state, X, f, metrics, t_start, t_end)
+        evals_log.append(entry)
+        account(state, entry)
+        if trimmed:
+            stop_reason = "budget_evals"
+        else:
+            optimizer.tell(X, f)
+        bar.update(len(X), state["best_f"])
+    return stop_reason
+
+
+def _close_log(evals_log: EvalLog, evals_path: Path, status: str, stop_reason: str | None,
+               error: dict | None) -> tuple[str, str | None, dict | None]:
+    """Close the log; a failure to close fails the job, but never hides an earlier error."""
+    try:
+        evals_log.close()
+    except OSError as exc:  # e.g. a full disk: the last flush failed; never hides an earlier error
+        close_error = _error(exc)
+        if error is None:
+            status, stop_reason, error = "failed", "error", close_error
+        else:
+            error["also"] = f"closing {evals_path} failed too: {close_error['message']}"
+    return status, stop_reason, error
 
 
 def _error(exc: BaseException) -> dict:
@@ -321,35 +282,6 @@ def _write_record(job_dir: Path, record: dict, error: dict | None) -> dict:
     except (OSError, RecordError) as err:
         first = f" after the job failed with {error['type']}: {error['message']}" if error else ""
         raise JobFolderError(f"{job_dir}: cannot write {RECORD} ({type(err).__name__}: {err}){first}") from None
-
-
-def _entry(state: dict, X, f, metrics: dict, t_start: float, t_end: float) -> dict:
-    return {
-        "batch": state["n_batches"],
-        "n": len(X),
-        "evals_total": state["n_evals"] + len(X),
-        "t_start_s": t_start,
-        "t_end_s": t_end,
-        "eval_s": t_end - t_start,
-        "X": np.asarray(X, float),
-        "f": np.asarray(f, float),
-        "metrics": {k: np.asarray(v, float).reshape(len(X)) for k, v in metrics.items()},
-    }
-
-
-def _account(state: dict, entry: dict) -> None:
-    """Update counters and the best point from one logged batch."""
-    f = np.asarray(entry["f"], float)
-    state["n_evals"] += len(f)
-    state["n_batches"] += 1
-    state["eval_s"] += entry["eval_s"]
-    state["offset_s"] = entry["t_end_s"]
-    finite = np.where(np.isfinite(f), f, np.inf)
-    i = int(np.argmin(finite))
-    if finite[i] < state["best_f"]:
-        state["best_f"] = float(finite[i])
-        state["best_x"] = np.asarray(entry["X"], float)[i]
-        state["best_metrics"] = {k: float(np.asarray(v, float)[i]) for k, v in entry["metrics"].items()}
 
 
 def _replay(optimizer, entries: list[dict], path: Path, budget: Budget, state: dict,
@@ -382,7 +314,7 @@ def _replay(optimizer, entries: list[dict], path: Path, budget: Budget, state: d
         if trimmed != over or (trimmed and (state["n_evals"] + len(X_logged) != budget.evals or i != len(entries) - 1)):
             raise RunError(f"{path}: batch {i} holds {len(X_logged)} of the {len(X_asked)} points asked, which "
                            f"this job's budget (budget.evals={budget.evals}) does not explain; it cannot be resumed")
-        _account(state, entry)
+        account(state, entry)
         if trimmed:  # the trimmed last batch of a finished evaluation budget
             return "budget_evals"
         optimizer.tell(X_logged, np.asarray(entry["f"], float))
@@ -429,25 +361,12 @@ def record_failure(job_dir: Path, identity: dict, config: dict, exc: BaseExcepti
         if previous is not None and previous.get("status") == "ok":
             raise RunError(f"{job_dir}: {type(exc).__name__}: {exc} (the folder's finished record is left unchanged)")
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        name = lambda v: v.get("name") if isinstance(v, dict) else v  # noqa: E731
-        record = {
-            "schema": SCHEMA,
-            "job_key": None,
-            "config_hash": config_hash(identity),
-            "identity": identity,
-            "status": "failed",
-            "error": {"type": type(exc).__name__, "message": str(exc),
-                      "traceback": "".join(traceback.format_exception(exc))},
-            "problem": name(identity.get("problem")), "optimizer": name(identity.get("optimizer")),
-            "seed": identity.get("seed"),
-            "budget": identity.get("budget"),
-            "config": config,
-            "space": None, "truth_x": None, "f_truth": None, "f_reference": None, "problem_identity": None,
-            "best_x": None, "best_f": None, "best_metrics": {},
-            "n_evals": 0, "n_batches": 0, "wall_s": 0.0, "eval_s": 0.0,
-            "stop_reason": "error", "started_utc": now, "ended_utc": now,
-            **provenance(),
-        }
+        error = {"type": type(exc).__name__, "message": str(exc), "traceback": "".join(traceback.format_exception(exc))}
+        no_problem = {"space": None, "truth_x": None, "f_truth": None, "f_reference": None, "problem_identity": None}
+        no_outcome = {"best_x": None, "best_f": None, "best_metrics": {}, "n_evals": 0, "n_batches": 0,
+                      "wall_s": 0.0, "eval_s": 0.0, "stop_reason": "error", "started_utc": now, "ended_utc": now}
+        record = job_record(identity, None, config_hash(identity), None, "failed", error, identity.get("budget"),
+                             config, no_problem, no_outcome)
         return _write_record(job_dir, record, record["error"])
     finally:
         lock.release()

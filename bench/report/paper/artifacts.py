@@ -162,64 +162,13 @@ def _sources(problem, records: list[dict]):
 def compute(problem, problem_config: dict, records: list[dict], folder: Path, profile_points: int,
             log: Callable[[str], None] = print) -> Artifacts:
     """Run the filter for everything the tables and figures need and write it into ``folder``."""
-    from avio.calibration import Calibration, calibration_errors
-    from avio.metrics import drift_metrics, pose_errors
-    from bench.problems.calibration_space import paper_parameters
-
     space = problem.space
-    rows, batch = _sources(problem, records)
-    table = pd.DataFrame(rows)
-    for i, name in enumerate(space.names):
-        table[f"x.{name}"] = problem.calibration_space.encode(batch)[:, i]
-    from avio.reference import PAPER_TABLE1
-
-    paper = paper_parameters(batch, problem.sequence.reference_calibration)
-    for i, name in enumerate(PAPER_TABLE1):
-        table[f"paper.{name}"] = paper[:, i]
-    truth_cal = problem.sequence.truth_calibration
-    if truth_cal is not None:
-        for key, values in calibration_errors(batch, truth_cal).items():
-            if key == "time_offset_error_ms" and "td" not in space.names:
-                continue
-            table[f"err.{key}"] = values
-
+    table, batch = _calibration_table(problem, records)
     drives, trajectories, meta = {}, {}, {}
-    runs = table["source"] == "run"
     for which, sequence in (("calibration", problem.sequence), ("holdout", problem.holdout)):
         if sequence is None:
             continue
-        # the drive's own reference and truth; the runs' calibrations are the same on every drive
-        drive_batch = Calibration.stack([sequence.reference_calibration]
-                                        + ([sequence.truth_calibration] if truth_cal is not None else [])
-                                        + ([batch[int(np.argmax(runs.to_numpy())):]] if runs.any() else []))
-        started = time.perf_counter()
-        log(f"  running the VIO on the {which} drive {sequence.name} ({sequence.n_frames} frames, "
-            f"{sequence.path_length_m():.0f} m) for {len(drive_batch)} calibrations")
-        result = problem.run_filter(drive_batch, sequence)
-        errors = pose_errors(result, sequence.truth)
-        drift = drift_metrics(result.p_world_imu_m, result.R_world_imu, sequence.truth)
-        frame = table[["source", "optimizer", "seed", "best_f"]].copy()
-        for state in STATES:
-            for stat in ("rmse", "mean", "std"):
-                frame[f"{state}_{stat}"] = errors[f"{state}_{stat}"]
-        for key in DRIFT_KEYS:
-            frame[key] = drift[key]
-        frame["diverged"] = result.diverged.astype(int)
-        drives[which] = frame
-        # trajectories of the reference, the truth and each optimiser's median run (by best f)
-        keep = list(np.flatnonzero(~runs.to_numpy()))
-        labels = [str(s) for s in table.loc[keep, "source"]]
-        for optimizer, group in table[runs].groupby("optimizer", sort=True):
-            k = group.index[median_run_index(group["best_f"].to_numpy(), group["seed"].to_numpy())]
-            keep.append(int(k))
-            labels.append(f"AVIO {optimizer} (seed {int(table.loc[k, 'seed'])})")
-        trajectories[which] = {
-            "labels": np.array(labels), "t_s": sequence.frame_t_s - sequence.frame_t_s[0],
-            "p_true": sequence.truth.p_world_imu_m, "p_est": result.p_world_imu_m[keep],
-            **{f"e_{state}": errors[f"{state}_errors"][keep] for state in STATES}}
-        meta[which] = {"name": sequence.name, "n_frames": int(sequence.n_frames),
-                       "path_length_m": float(sequence.path_length_m()),
-                       "seconds": round(time.perf_counter() - started, 1)}
+        drives[which], trajectories[which], meta[which] = _run_drive(problem, which, sequence, table, batch, log)
     profile = None
     if profile_points > 0:
         started = time.perf_counter()
@@ -239,6 +188,72 @@ def compute(problem, problem_config: dict, records: list[dict], folder: Path, pr
     except OSError as err:  # a read-only sweep folder: the report still builds, from memory
         log(f"  note: could not store artifacts in {folder} ({err.strerror}); they will be recomputed next time")
     return art
+
+
+def _calibration_table(problem, records: list[dict]):
+    """(table, calibrations): one row per source with its point, paper variables and errors; their batch."""
+    from avio.calibration import calibration_errors
+    from bench.problems.calibration_space import paper_parameters
+
+    space = problem.space
+    rows, batch = _sources(problem, records)
+    table = pd.DataFrame(rows)
+    for i, name in enumerate(space.names):
+        table[f"x.{name}"] = problem.calibration_space.encode(batch)[:, i]
+    from avio.reference import PAPER_TABLE1
+
+    paper = paper_parameters(batch, problem.sequence.reference_calibration)
+    for i, name in enumerate(PAPER_TABLE1):
+        table[f"paper.{name}"] = paper[:, i]
+    truth_cal = problem.sequence.truth_calibration
+    if truth_cal is not None:
+        for key, values in calibration_errors(batch, truth_cal).items():
+            if key == "time_offset_error_ms" and "td" not in space.names:
+                continue
+            table[f"err.{key}"] = values
+    return table, batch
+
+
+def _run_drive(problem, which: str, sequence, table: pd.DataFrame, batch,
+               log: Callable[[str], None]) -> tuple[pd.DataFrame, dict, dict]:
+    """The VIO on one drive at the table's calibrations: (its error rows, trajectories, drive meta)."""
+    from avio.calibration import Calibration
+    from avio.metrics import drift_metrics, pose_errors
+
+    truth_cal = problem.sequence.truth_calibration
+    runs = table["source"] == "run"
+    # the drive's own reference and truth; the runs' calibrations are the same on every drive
+    drive_batch = Calibration.stack([sequence.reference_calibration]
+                                    + ([sequence.truth_calibration] if truth_cal is not None else [])
+                                    + ([batch[int(np.argmax(runs.to_numpy())):]] if runs.any() else []))
+    started = time.perf_counter()
+    log(f"  running the VIO on the {which} drive {sequence.name} ({sequence.n_frames} frames, "
+        f"{sequence.path_length_m():.0f} m) for {len(drive_batch)} calibrations")
+    result = problem.run_filter(drive_batch, sequence)
+    errors = pose_errors(result, sequence.truth)
+    drift = drift_metrics(result.p_world_imu_m, result.R_world_imu, sequence.truth)
+    frame = table[["source", "optimizer", "seed", "best_f"]].copy()
+    for state in STATES:
+        for stat in ("rmse", "mean", "std"):
+            frame[f"{state}_{stat}"] = errors[f"{state}_{stat}"]
+    for key in DRIFT_KEYS:
+        frame[key] = drift[key]
+    frame["diverged"] = result.diverged.astype(int)
+    # trajectories of the reference, the truth and each optimiser's median run (by best f)
+    keep = list(np.flatnonzero(~runs.to_numpy()))
+    labels = [str(s) for s in table.loc[keep, "source"]]
+    for optimizer, group in table[runs].groupby("optimizer", sort=True):
+        k = group.index[median_run_index(group["best_f"].to_numpy(), group["seed"].to_numpy())]
+        keep.append(int(k))
+        labels.append(f"AVIO {optimizer} (seed {int(table.loc[k, 'seed'])})")
+    trajectories = {
+        "labels": np.array(labels), "t_s": sequence.frame_t_s - sequence.frame_t_s[0],
+        "p_true": sequence.truth.p_world_imu_m, "p_est": result.p_world_imu_m[keep],
+        **{f"e_{state}": errors[f"{state}_errors"][keep] for state in STATES}}
+    meta = {"name": sequence.name, "n_frames": int(sequence.n_frames),
+            "path_length_m": float(sequence.path_length_m()),
+            "seconds": round(time.perf_counter() - started, 1)}
+    return frame, trajectories, meta
 
 
 def _write(art: Artifacts) -> None:

@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from avio.datasets.euroc import CAMCHAIN_FILE, FEATURES_FILE, GRAVITY_MPS2, GT_FILE, IMU_CHAIN_FILE, EurocDataError, load_euroc, read_camchain, read_euroc, read_imu_noise, read_kalibr_yaml
+from avio.datasets.euroc import CAMCHAIN_FILE, FEATURES_FILE, GRAVITY_MPS2, GT_FILE, IMU_CHAIN_FILE, EurocDataError, load_euroc, read_euroc
+from avio.datasets.kalibr import read_camchain, read_imu_noise, read_kalibr_yaml
 from avio.geometry import geodesic_angle_deg, so3_log
-from avio.filter.measurement import relative_poses, triplet_residuals
 from avio.calibration import Calibration
 from avio.sequence import ImuSamples
+from tests.avio.filter.filter_model import relative_poses, triplet_residuals
 
 
 @pytest.fixture(scope="module")
@@ -288,13 +289,13 @@ def test_kalibr_yaml_errors_name_file_line_and_key(tmp_path):
     path = tmp_path / "chain.yaml"
     path.write_text("%YAML:1.0\ncam0:\n  intrinsics: [1, 2\n  resolution: [640, 480]\n")
     with pytest.raises(EurocDataError, match=r"chain.yaml:\d+: not valid YAML"):
-        read_camchain(path)
+        read_camchain(path, error=EurocDataError)
     path.write_text("%YAML:1.0\ncam0:\n  intrinsics: [400.0, 401.0, 320.0, 240.0]\n")
     with pytest.raises(EurocDataError, match="missing key cam0.T_imu_cam"):
-        read_camchain(path)
+        read_camchain(path, error=EurocDataError)
     path.write_text("imu0:\n  accelerometer_noise_density: 2.0e-3\n  gyroscope_noise_density: x\n")
     with pytest.raises(EurocDataError, match="imu0.gyroscope_noise_density is not numeric"):
-        read_imu_noise(path)
+        read_imu_noise(path, error=EurocDataError)
     with pytest.raises(EurocDataError, match="EuRoC data folder not found"):
         load_euroc(tmp_path / "absent")
 

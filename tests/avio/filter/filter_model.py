@@ -1,5 +1,6 @@
 """Batched wrappers of the kernel's per-filter steps, for tests only: the measurement chain and the
-injection of n filters, checked against finite differences in test_measurement.py."""
+injection of n filters, checked against finite differences in test_measurement.py; and the
+trifocal residuals of F features for n filters' relative poses (test_measurement.py, test_euroc.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 
 from avio.calibration import Calibration
 from avio.filter.batch import _cal_arrays, _f64, _State
-from avio.filter.measurement import measure, measure_workspace
+from avio.filter.measurement import MeasurementError, feature_residuals, measure, measure_workspace, rot_t
 from avio.filter.update import inject
 
 
@@ -55,3 +56,48 @@ def inject_correction(st: _State, dx) -> None:
 
 
 State = _State  # the initial states of n filters (avio.filter.batch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, r, J, G):
+    """:func:`feature_residuals` of every feature for each of the n relative poses, into r, J, G."""
+    for i in range(R12.shape[0]):
+        R23 = np.empty((3, 3))
+        for a in range(3):
+            for b in range(3):
+                R23[a, b] = R12[i, 0, a] * R13[i, 0, b] + R12[i, 1, a] * R13[i, 1, b] + R12[i, 2, a] * R13[i, 2, b]
+        d = t13[i] - t12[i]
+        t23 = rot_t(R12[i], (d[0], d[1], d[2]))
+        a12 = (t12[i, 0], t12[i, 1], t12[i, 2])
+        a13 = (t13[i, 0], t13[i, 1], t13[i, 2])
+        for f in range(uv_px.shape[0]):
+            feature_residuals(uv_px[f], R12[i], a12, R13[i], a13, R23, t23, fx[i], fy[i], cx[i], cy[i],
+                              r[i, f], J[i, f], G[i, f])
+
+
+def triplet_residuals(uv_px, R12, t12, R13, t13, fx, fy, cx, cy, with_pixel_jacobian: bool = False):
+    """Innovations (n, F, 4) pixels and Jacobians (n, F, 4, 12) of F features (uv_px (F, 3, 2),
+    shared by the batch) for n filters' relative poses R12, R13 (n, 3, 3), t12, t13 (n, 3) and
+    intrinsics (n,); :func:`feature_residuals` per feature (what the filter's update runs).
+    ``with_pixel_jacobian`` also returns G (n, F, 4, 6), d residuals / d pixels."""
+    if uv_px.ndim != 3 or uv_px.shape[1:] != (3, 2):
+        raise MeasurementError(f"triplet_residuals: uv_px must be (F, 3, 2) pixels, got {uv_px.shape}")
+    n, F = R12.shape[0], uv_px.shape[0]
+    r = np.empty((n, F, 4))
+    J = np.empty((n, F, 4, 12))
+    G = np.empty((n, F, 4, 6))
+    _triplet_residuals(_f64(uv_px), _f64(R12), _f64(t12), _f64(R13), _f64(t13), _f64(fx), _f64(fy), _f64(cx),
+                       _f64(cy), r, J, G)
+    return (r, J, G) if with_pixel_jacobian else (r, J)
+
+
+def relative_poses(Rc, pc):
+    """Camera poses of the triplet -> ``(R12, t12, R13, t13)``.
+
+    Rc (3, n, 3, 3) ``R_world_cam`` and pc (3, n, 3) ``p_world_cam`` of images 1, 2, 3.
+    """
+    R1t = np.swapaxes(Rc[0], 1, 2)
+    R12, R13 = R1t @ Rc[1], R1t @ Rc[2]
+    t12 = (R1t @ (pc[1] - pc[0])[..., None])[..., 0]
+    t13 = (R1t @ (pc[2] - pc[0])[..., None])[..., 0]
+    return R12, t12, R13, t13

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from avio.filter.config import FilterConfig
-from filter_model import State, inject_correction, measurement_model
+from filter_model import State, inject_correction, measurement_model, relative_poses, triplet_residuals
 from avio.geometry import so3_exp
-from avio.filter.measurement import relative_poses, triplet_residuals
 
 from test_filter import make_circle_sequence, perturbed
 
