@@ -41,6 +41,7 @@ from typing import Callable
 
 import numpy as np
 
+from bench.errors import BenchError
 from bench.problems.base import Problem
 from bench.provenance import provenance
 from bench.records import (
@@ -60,7 +61,7 @@ from bench.run.identity import SCHEMA, config_hash, header_mismatch, job_header
 log = logging.getLogger(__name__)
 
 
-class RunError(RuntimeError):
+class RunError(BenchError):
     """A job cannot run or resume as configured; nothing on disk was changed; the message says why."""
 
 
