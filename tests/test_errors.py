@@ -124,3 +124,42 @@ def test_bad_input_from_an_optimiser_or_a_problem_is_still_one_message(tmp_path,
     code, out = _preflight(tmp_path, capsys)
     assert code == 2 and "error: problem=sphere: sphere: a data file is corrupt" in out and "Traceback" not in out
     assert not (tmp_path / "sweep").exists()
+
+
+# --- the report's edges: python -m bench.report, bench.export, bench.tables ------------------------
+
+def _raiser(exc: BaseException):
+    def run(*args, **kwargs):
+        raise exc
+    return run
+
+
+@pytest.mark.parametrize("entry, target", [("bench.report.__main__", "build_report"),
+                                           ("bench.report.export", "export"),
+                                           ("bench.report.paper.tables", "build_tables")])
+def test_report_entries_say_project_errors_and_let_bugs_through(entry, target, tmp_path, monkeypatch, capsys):
+    from avio.metrics import MetricsError
+    from bench.report.stats import StatsError
+
+    module = importlib.import_module(entry)
+    argv = {"bench.report.export": [str(tmp_path), "--format", "tum"],
+            "bench.report.paper.tables": [str(tmp_path), "--out", str(tmp_path / "t")]}.get(entry, [str(tmp_path)])
+    for error in (StatsError("alpha must be in (0, 1)"), MetricsError("no common frames")):
+        monkeypatch.setattr(module, target, _raiser(error))
+        assert module.main(argv) == 2
+        assert f"error: {error}" in capsys.readouterr().err
+    monkeypatch.setattr(module, target, _raiser(ValueError("a deliberate bug, not bad input")))
+    with pytest.raises(ValueError, match="a deliberate bug"):
+        module.main(argv)
+
+
+def test_export_says_a_diverged_filter_with_exit_1_and_lets_other_runtime_errors_through(tmp_path, monkeypatch,
+                                                                                         capsys):
+    from bench.report import export
+
+    argv = [str(tmp_path), "--format", "tum"]
+    monkeypatch.setattr(export, "export", _raiser(export.ExportDivergedError("the filter diverged at frame 7")))
+    assert export.main(argv) == 1 and "the filter diverged at frame 7" in capsys.readouterr().err
+    monkeypatch.setattr(export, "export", _raiser(RecursionError("a deliberate bug")))  # a RuntimeError
+    with pytest.raises(RecursionError):
+        export.main(argv)

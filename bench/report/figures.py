@@ -39,7 +39,7 @@ def figure_key(*parts) -> str:
 
     digest = hashlib.sha256(matplotlib.__version__.encode())
     here = Path(__file__).resolve().parent
-    for module in ("figures.py", "paper_figures.py"):
+    for module in ("figures.py", "paper/figures.py"):
         digest.update((here / module).read_bytes())
     for part in parts:
         digest.update(part if isinstance(part, bytes) else

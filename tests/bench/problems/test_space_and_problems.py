@@ -7,6 +7,7 @@ import pytest
 
 from bench import problems
 from bench.problems.analytic import AnalyticProblem, paper_box_space
+from bench.problems.base import ProblemError
 from bench.space import Space, SpaceError
 
 

@@ -371,7 +371,7 @@ def test_a_long_replay_says_how_far_it_got(tmp_path, capsys):
 
 _WATCH = """
 import os, time
-from bench.job import exit_with_the_sweep, _watching
+from bench.run.job import exit_with_the_sweep, _watching
 exit_with_the_sweep()
 time.sleep(1.5)
 print("alive", _watching.is_set())
