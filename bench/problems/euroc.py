@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avio.calibration import Calibration
-from avio.errors import AvioError
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir
 
@@ -104,11 +103,11 @@ class EurocParams(VioParams):
         return default_data_dir(self.data_dir) / FOLDER
 
     def _kalibr(self) -> tuple[Calibration, tuple[int, int]]:
-        from avio.datasets.euroc import CAMCHAIN_FILE, read_camchain
+        from avio.datasets.euroc import CAMCHAIN_FILE, EurocDataError, read_camchain
 
         try:
             return read_camchain(self._folder() / CAMCHAIN_FILE)
-        except AvioError as err:  # EurocDataError, or a CalibrationError of the file's values
+        except EurocDataError as err:
             raise ProblemError(str(err)) from None
 
     def nominal_for_checks(self) -> Calibration:
@@ -124,13 +123,13 @@ class EurocParams(VioParams):
         self._load_all()
 
     def _load(self, window: tuple[float, float], what: str):
-        from avio.datasets.euroc import load_euroc
+        from avio.datasets.euroc import EurocDataError, load_euroc
 
         try:
             return load_euroc(self._folder(), *window, max_features=self.max_features, seed=self.data_seed,
                               nominal_perturbation=self.nominal_perturbation,
                               gyro_bias_init=self.gyro_bias_init, accel_bias_init=self.accel_bias_init)
-        except AvioError as err:  # EurocDataError, or the tracks' and frontend's errors
+        except EurocDataError as err:
             raise ProblemError(f"{what}: {err}") from None
 
     def _load_all(self) -> dict:
