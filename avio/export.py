@@ -18,8 +18,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from avio.errors import AvioError
 
-class ExportError(ValueError):
+
+class ExportError(AvioError):
     """A trajectory cannot be written or a file cannot be read back; the message says where."""
 
 

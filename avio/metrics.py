@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from avio.errors import AvioError
 from avio.geometry import geodesic_angle_deg
 from avio.sequence import GroundTruth
 
 
-class MetricsError(ValueError):
+class MetricsError(AvioError):
     """Estimates and truth do not fit together; the message says how."""
 
 

@@ -19,9 +19,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 
 
-class SequenceError(ValueError):
+class SequenceError(AvioError):
     """A sequence (or a part of it) is malformed; the message names what and where."""
 
 

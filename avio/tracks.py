@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from avio.errors import AvioError
 from avio.sequence import TripletTracks
 
 
-class TracksError(ValueError):
+class TracksError(AvioError):
     """Observations cannot be turned into triplet tracks; the message says which and why."""
 
 

@@ -31,6 +31,8 @@ from pathlib import Path
 import numpy as np
 import orjson
 
+from bench.errors import BenchError
+
 if typing.TYPE_CHECKING:  # pandas only where records are read back: a job that writes them saves ~0.2 s of import
     import pandas as pd
 
@@ -41,7 +43,7 @@ LOCK_FILE = ".lock"
 FILE_MODE = 0o644  # like every other file the harness writes (mkstemp alone gives 0600)
 
 
-class RecordError(ValueError):
+class RecordError(BenchError):
     """A record or log file is unreadable; the message names the file and line."""
 
 
@@ -180,7 +182,7 @@ def read_job_file(job_dir: Path) -> dict | None:
     return header
 
 
-class LockError(RuntimeError):
+class LockError(BenchError):
     """Another process holds the lock; the message names it."""
 
 

@@ -6,8 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.errors import BenchError
 
-class SpaceError(ValueError):
+
+class SpaceError(BenchError):
     """Invalid bounds or a point outside the space; the message names the variable."""
 
 

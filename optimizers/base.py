@@ -13,6 +13,13 @@ and ``_tell(X, f)`` learns from its values. The base owns everything the harness
 - best tracking (``best`` is the lowest finite f told and the point that gave it);
 - hyperparameter checks (``int_param``, ``float_param``, ``choice_param``) whose messages name
   the plugin, the key and the valid range.
+
+``OptimizerError`` is the one base of every error a plugin raises on purpose (bad bounds, bad
+hyperparameters, a tell that does not match its ask). It derives from ``Exception``, not
+``ValueError``: the harness catches ``OptimizerError`` as bad input, so a ``ValueError`` from a
+plugin's bug or its library (in ``_ask``, ``_tell``) keeps its traceback instead of passing for
+a bad setting. A plugin that wraps a library's own checks catches the library's error locally
+and raises an ``OptimizerError`` (or a subclass) naming the key.
 """
 
 from __future__ import annotations
@@ -24,8 +31,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 
-class OptimizerError(ValueError):
-    """Invalid optimiser input (bounds, hyperparameters, a tell that does not match its ask)."""
+class OptimizerError(Exception):
+    """Invalid optimiser input (bounds, hyperparameters, a tell that does not match its ask); the
+    base of every optimizers error (plugins subclass it for their own)."""
 
 
 @runtime_checkable

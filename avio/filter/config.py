@@ -10,10 +10,11 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammaincinv
 
+from avio.errors import AvioError
 from avio.filter.update import M
 
 
-class FilterError(ValueError):
+class FilterError(AvioError):
     """Bad input to the filter (sequence, calibrations or config); the message says what."""
 
 

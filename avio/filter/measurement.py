@@ -36,10 +36,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from avio.errors import AvioError
 from avio.filter._linalg import matmul, so3_exp
 
 
-class MeasurementError(ValueError):
+class MeasurementError(AvioError):
     """Bad input to the measurement model; the message names what and where."""
 
 

@@ -27,10 +27,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from avio.errors import AvioError
 from avio.filter._linalg import matmul, so3_exp
 
 
-class ImuPropagationError(ValueError):
+class ImuPropagationError(AvioError):
     """Bad input to IMU propagation; the message names what and where."""
 
 

@@ -22,14 +22,15 @@ from typing import Literal
 
 import numpy as np
 
+from avio.errors import AvioError
 from avio.frontend.klt import FrontendConfig, FrontendStats, track_images
-from avio.sequence import Sequence, SequenceError, TripletTracks, content_hash
+from avio.sequence import Sequence, TripletTracks, content_hash
 
 CACHE_FORMAT_VERSION = 2  # 2: content checksum in the file
 _TRACK_FIELDS = ("frame_index", "uv_px", "valid")
 
 
-class CacheError(ValueError):
+class CacheError(AvioError):
     """The cache folder cannot be used (e.g. it is a file); the message names it."""
 
 
@@ -75,8 +76,9 @@ def _load(path: Path, key: str) -> tuple[TripletTracks, FrontendStats] | None:
                 return None
             tracks = TripletTracks(**{k: data[k] for k in _TRACK_FIELDS})
             stats = FrontendStats(**{f.name: data["stats_" + f.name] for f in fields(FrontendStats)})
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, SequenceError):
-        # A truncated, foreign or pre-checksum file: rebuilding is the cure, so it is not raised.
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, AvioError):
+        # A truncated, foreign or pre-checksum file (numpy's ValueError, or arrays that TripletTracks
+        # refuses with a SequenceError): rebuilding is the cure, so it is not raised.
         return None
     return tracks, stats
 

@@ -20,11 +20,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from avio.errors import AvioError
 from avio.sequence import TripletTracks
 from avio.tracks import rank_in_groups, triplets_from_observations
 
 
-class FrontendError(ValueError):
+class FrontendError(AvioError):
     """An image cannot be read or the images disagree; the message names the file."""
 
 

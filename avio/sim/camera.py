@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 from avio.geometry import so3_exp, so3_log
 from avio.sequence import GroundTruth, TripletTracks
 from avio.sim.trajectory import TrajectoryFn
@@ -27,7 +28,7 @@ from avio.tracks import triplets_from_observations
 IMU_HEIGHT_M = 0.93  # KITTI OXTS unit above the road (KITTI sensor setup drawing)
 
 
-class CameraSimError(ValueError):
+class CameraSimError(AvioError):
     """Bad input to the camera simulation; the message names the argument and what is wrong."""
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 from avio.sequence import GroundTruth
 from avio.sim.camera import Observations, project_landmarks
 from avio.sim.trajectory import TrajectoryFn
@@ -31,7 +32,7 @@ PROJECTIONS_FILE = "projections.npz"
 _DONE_FILE = "render_complete.json"
 
 
-class RenderError(ValueError):
+class RenderError(AvioError):
     """Bad render input or an unreadable render folder; the message names the file or argument."""
 
 

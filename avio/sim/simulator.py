@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 from avio.geometry import so3_exp
 from avio.reference import IMAGE_SIZE_PX, kitti_2011_10_03_calibration
 from avio.sequence import ImuNoise, ImuSamples, Sequence, content_hash
@@ -41,7 +42,7 @@ _STREAMS = ("trajectory", "calibration", "imu", "landmarks", "tracks", "render")
 NOISE_STREAMS = ("imu", "tracks")
 
 
-class SimulatorError(ValueError):
+class SimulatorError(AvioError):
     """A SimConfig that cannot be simulated; the message names the field and the value."""
 
 

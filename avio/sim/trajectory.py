@@ -31,6 +31,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.interpolate import BSpline, make_interp_spline
 from scipy.spatial.transform import Rotation
 
+from avio.errors import AvioError
 from avio.sequence import GroundTruth
 
 KINDS = ("straight", "city", "city_hills", "full3d")
@@ -38,7 +39,7 @@ _PATH_STEP_M = 0.5
 _SPEED_KNOT_S = 1.0
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(AvioError):
     """Bad trajectory request (unknown kind, non-positive duration, times outside the domain)."""
 
 

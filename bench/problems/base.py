@@ -8,11 +8,12 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from bench.errors import BenchError
 from bench.space import Space
 from optimizers.registry import Registry
 
 
-class ProblemError(ValueError):
+class ProblemError(BenchError):
     """A problem could not be built (bad config, missing data); the message names what and where."""
 
 

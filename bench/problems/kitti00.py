@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir
 
@@ -42,11 +43,11 @@ def _frames(window, what: str) -> tuple[int, int]:
 
 
 def _read(data_dir: str | None):
-    from avio.datasets.kitti00 import KittiDataError, read_kitti00
+    from avio.datasets.kitti00 import read_kitti00
 
     try:
         return read_kitti00(default_data_dir(data_dir) / "kitti00")  # parses and validates every file (memoised)
-    except (KittiDataError, OSError) as err:
+    except (AvioError, OSError) as err:  # KittiDataError, or another avio error of its data
         raise ProblemError(str(err)) from None
 
 
@@ -57,19 +58,19 @@ def _rectified_reference() -> Calibration:
 
 
 def _load(data_dir, window, what: str, **kwargs):
-    from avio.datasets.kitti00 import KittiDataError, load_kitti00
+    from avio.datasets.kitti00 import load_kitti00
 
     first, last = _frames(window, what)
     try:
         return load_kitti00(default_data_dir(data_dir) / "kitti00", first, last, **kwargs)
-    except KittiDataError as err:
+    except AvioError as err:  # KittiDataError, or the simulated camera's and tracks' errors
         raise ProblemError(f"{what}: {err}") from None
 
 
 def _check_windows(data_dir, windows: dict) -> None:
     """Each window inside the data, its IMU gap-free and its ground truth consistent (cheap:
     the files are parsed once per process)."""
-    from avio.datasets.kitti00 import KittiDataError, _check_window, check_ground_truth_rate, kitti00_truth, select_imu
+    from avio.datasets.kitti00 import _check_window, check_ground_truth_rate, kitti00_truth, select_imu
 
     raw = _read(data_dir)
     for what, window in windows.items():
@@ -78,7 +79,7 @@ def _check_windows(data_dir, windows: dict) -> None:
             _check_window(first, last, len(raw.frame_t_s), str(raw.data_dir))
             select_imu(raw.imu, raw.frame_t_s[first:last + 1], first, 0.1, 0.05, raw.frame_t_s, str(raw.data_dir))
             check_ground_truth_rate(raw, kitti00_truth(raw.data_dir), first, last, source=str(raw.data_dir))
-        except KittiDataError as err:
+        except AvioError as err:  # KittiDataError
             raise ProblemError(f"{what}: {err}") from None
 
 

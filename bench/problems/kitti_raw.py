@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from avio.calibration import Calibration
+from avio.errors import AvioError
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
 
@@ -38,11 +39,11 @@ class KittiRawParams(VioParams):
         return Path(self.calib_dir) if self.calib_dir else Path(self.path).parent
 
     def _reference(self) -> tuple[Calibration, tuple[int, int]]:
-        from avio.datasets.kitti_raw import KittiRawError, reference_calibration
+        from avio.datasets.kitti_raw import reference_calibration
 
         try:
             return reference_calibration(self._calib_dir())
-        except KittiRawError as err:
+        except AvioError as err:  # KittiRawError, or a CalibrationError of the file's values
             raise ProblemError(str(err)) from None
 
     def nominal_for_checks(self) -> Calibration:
@@ -52,8 +53,7 @@ class KittiRawParams(VioParams):
         return self._reference()[1]
 
     def check_data(self) -> None:
-        from avio.datasets.kitti_raw import KittiRawError
-        from avio.datasets.oxts import OxtsError, read_oxts_packets, read_timestamps
+        from avio.datasets.oxts import read_oxts_packets, read_timestamps
 
         drive = Path(self.path)
         if not (drive / "oxts" / "data").is_dir():
@@ -61,7 +61,7 @@ class KittiRawParams(VioParams):
         try:
             packets = read_oxts_packets(drive / "oxts" / "data")
             stamps = read_timestamps(drive / "oxts" / "timestamps.txt")[0]
-        except (KittiRawError, OxtsError, OSError) as err:
+        except (AvioError, OSError) as err:  # OxtsError, KittiRawError
             raise ProblemError(str(err)) from None
         if len(stamps) != len(packets):
             raise ProblemError(f"{drive / 'oxts'}: {len(stamps)} timestamps for {len(packets)} OXTS packets")

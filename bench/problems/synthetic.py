@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from avio.errors import AvioError
 from avio.sequence import ImuNoise, Sequence
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
@@ -25,7 +26,7 @@ NOISE_WORD = 2000  # third entropy word of a noise realisation's seed (4 words: 
 
 
 def _sim_config(drive: str, sim: dict | None):
-    from avio.sim.simulator import SimConfig, SimulatorError
+    from avio.sim.simulator import SimConfig
 
     if drive not in PRESETS:
         raise ProblemError(f"synthetic: unknown drive {drive!r}; valid: {', '.join(PRESETS)}")
@@ -37,7 +38,7 @@ def _sim_config(drive: str, sim: dict | None):
         config.validate()
     except TypeError as err:
         raise ProblemError(f"sim: {err}") from None
-    except SimulatorError as err:
+    except AvioError as err:  # SimulatorError, or a trajectory's or camera's error
         raise ProblemError(f"sim: {err}") from None
     return config
 

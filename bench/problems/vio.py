@@ -68,7 +68,7 @@ def filter_config(params: dict | None) -> FilterConfig:
         raise ProblemError(f"filter: unknown setting(s) {sorted(unknown)}; valid: {', '.join(sorted(valid))}")
     try:
         return FilterConfig(**_tuples(params))
-    except (FilterError, TypeError, ValueError) as err:
+    except (FilterError, TypeError) as err:
         raise ProblemError(f"filter: {err}") from None
 
 

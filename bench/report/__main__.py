@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bench.records import RecordError
-from bench.report.build import ReportError, build_report
-from bench.report.curves import CurvesError
-from bench.report.leaderboard import LeaderboardError
-from bench.report.stats import StatsError
-from bench.report.targets import TargetsError
+from avio.errors import AvioError
+from bench.errors import BenchError
+from bench.report.build import build_report
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
                             paper_tables=not args.no_tables, recompute=args.recompute)
-    except (ReportError, RecordError, LeaderboardError, StatsError, TargetsError, CurvesError) as err:
+    except (BenchError, AvioError) as err:  # ReportError, RecordError, StatsError, ...; anything else is a bug
         print(f"bench.report: error: {err}", file=sys.stderr)
         return 2
     except OSError as err:

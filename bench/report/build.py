@@ -38,6 +38,7 @@ from typing import Callable
 
 import pandas as pd
 
+from bench.errors import BenchError
 from bench.records import find_job_dirs, read_record
 from bench.report.curves import anytime_curves, run_traces
 from bench.report.figures import anytime_figure, ecdf_figure
@@ -52,7 +53,7 @@ LEADERBOARD_MD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_med
                           "evals_median", "seconds_median", "f_unit", "p_holm_vs_leader", "verdict"]
 
 
-class ReportError(ValueError):
+class ReportError(BenchError):
     """The report cannot be built from the given folders; the message says why."""
 
 

@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bench.errors import BenchError
 from bench.records import EVAL_LOG, read_eval_log
 
 AXES = ("evals", "seconds")
 TRACE_COLUMNS = ["job_dir", "problem", "optimizer", "seed", "batch", "evals", "seconds", "best_f"]
 
 
-class CurvesError(ValueError):
+class CurvesError(BenchError):
     """An evaluation log cannot be turned into a trace; the message names the job folder."""
 
 

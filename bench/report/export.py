@@ -27,15 +27,21 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.records import RECORD, RecordError, read_record
+from avio.errors import AvioError
+from bench.errors import BenchError
+from bench.records import RECORD, read_record
 
 CALIBRATIONS = ("best", "reference", "truth")
 FORMATS = ("tum", "kitti")
 DRIVES = ("calibration", "holdout")
 
 
-class ExportArgsError(ValueError):
+class ExportArgsError(BenchError):
     """The export cannot start; the message names the file or the option."""
+
+
+class ExportDivergedError(BenchError):
+    """The filter diverged with the chosen calibration; nothing was written (exit code 1)."""
 
 
 def _say(message: str) -> None:
@@ -86,12 +92,11 @@ def export(job_dir: Path, calibration: str = "best", fmt: str = "tum", drive: st
     started = time.perf_counter()
     log(f"export: building problem {record['config']['problem'].get('name')!r} from {job_dir / RECORD} "
         "(simulating or loading its drives; compiling the VIO filter on a first run, ~30 s)")
-    from bench.problems.base import ProblemError
-
     try:
         problem = build_problem(record["config"])
-    except ProblemError as err:
-        raise ExportArgsError(f"{job_dir / RECORD}: cannot rebuild the problem from the record's config: {err}") from None
+    except (BenchError, AvioError) as err:  # ProblemError, SpaceError, a data file's DatasetError
+        raise ExportArgsError(f"{job_dir / RECORD}: cannot rebuild the problem from the record's config: "
+                              f"{err}") from None
     sequence = problem.sequence if drive == "calibration" else problem.holdout
     if sequence is None:
         raise ExportArgsError(f"--drive holdout: problem {problem.name!r} has no held-out drive")
@@ -107,8 +112,8 @@ def export(job_dir: Path, calibration: str = "best", fmt: str = "tum", drive: st
         f"with the {calibration} calibration")
     result = problem.run_filter(cal, sequence)
     if bool(result.diverged[0]):
-        raise RuntimeError(f"the filter diverged at frame {int(result.diverged_at_frame[0])} with the {calibration} "
-                           "calibration; nothing written")
+        raise ExportDivergedError(f"the filter diverged at frame {int(result.diverged_at_frame[0])} with the "
+                                  f"{calibration} calibration; nothing written")
     rmse = float(pose_errors(result, sequence.truth)["position_rmse"][0])
     p, R = result.p_world_imu_m[0], result.R_world_imu[0]
     truth = sequence.truth
@@ -138,12 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         done = export(args.job_dir, args.calibration, args.format, args.drive, args.out)
-    except (ExportArgsError, RecordError) as err:
-        print(f"bench.export: error: {err}", file=sys.stderr)
-        return 2
-    except RuntimeError as err:
+    except ExportDivergedError as err:
         print(f"bench.export: error: {err}", file=sys.stderr)
         return 1
+    except (BenchError, AvioError) as err:  # ExportArgsError, RecordError, an avio error running the VIO
+        print(f"bench.export: error: {err}", file=sys.stderr)
+        return 2
     for path in done["files"]:
         print(path)
     return 0

@@ -36,13 +36,14 @@ import json
 import numpy as np
 import pandas as pd
 
+from bench.errors import BenchError
 from bench.report.stats import ranks
 
 REQUIRED = ("problem", "optimizer", "seed", "status")
 RATE_METRICS = ("diverged",)
 
 
-class LeaderboardError(ValueError):
+class LeaderboardError(BenchError):
     """A record lacks a field the leaderboard needs; the message names the job folder."""
 
 

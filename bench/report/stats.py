@@ -43,11 +43,13 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
+from bench.errors import BenchError
+
 MIN_RUNS = 2
 A12_THRESHOLDS = ((0.21, "large"), (0.14, "medium"), (0.06, "small"))
 
 
-class StatsError(ValueError):
+class StatsError(BenchError):
     """Bad input to a statistic (wrong shape, unknown option); the message says what."""
 
 

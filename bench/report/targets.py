@@ -36,13 +36,15 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from bench.errors import BenchError
+
 OBJECTIVE_LEVELS = (0.01, 0.05, 0.10)
 MAIN_LEVEL = 0.05
 METRIC_TARGETS = (("rotation_error_deg", 0.5), ("rotation_error_deg", 0.1), ("focal_error_px", 1.0))
 AXES = ("evals", "seconds")
 
 
-class TargetsError(ValueError):
+class TargetsError(BenchError):
     """Inputs to the fixed-target computations are inconsistent; the message says which."""
 
 

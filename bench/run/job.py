@@ -19,6 +19,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 import optimizers
+from bench.errors import BenchError
 from bench.problems.base import build_problem
 from bench.run.identity import job_key
 from bench.run.loop import Budget, JobFolderError, RunError, record_failure, run_job
@@ -30,7 +31,7 @@ PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
-class ConfigError(ValueError):
+class ConfigError(BenchError):
     """An invalid job config; the message names the key and the valid choices."""
 
 

@@ -40,6 +40,7 @@ from typing import Callable
 
 import numpy as np
 
+from bench.errors import BenchError
 from bench.problems.base import Problem
 from bench.records import (
     JOB_FILE,
@@ -60,7 +61,7 @@ from bench.run.progress import Progress
 log = logging.getLogger(__name__)
 
 
-class RunError(RuntimeError):
+class RunError(BenchError):
     """A job cannot run or resume as configured; nothing on disk was changed; the message says why."""
 
 

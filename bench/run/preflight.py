@@ -30,7 +30,9 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 import optimizers
+from avio.errors import AvioError
 from bench import problems
+from bench.errors import BenchError
 from bench.records import EVAL_LOG, RecordError, lock_holder, read_job_file, read_record
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
@@ -74,7 +76,6 @@ _BUILT: set[str] = set()  # problem configs announced (build_problem caches the 
 def _built_space(cfg: dict) -> Space:
     """The space of the job's problem, built as a job builds it (``bench.job.build_problem``, cached
     per process, so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError."""
-    from bench.problems import ProblemError
     from bench.problems.base import build_problem
 
     name = cfg["problem"]["name"]
@@ -85,7 +86,7 @@ def _built_space(cfg: dict) -> Space:
               flush=True)
     try:
         return build_problem(cfg).space
-    except (ProblemError, ValueError, OSError, TypeError, KeyError) as err:
+    except (BenchError, AvioError, OSError, TypeError, KeyError) as err:
         raise ConfigError(f"problem={name}: {err}") from None
 
 
@@ -103,11 +104,9 @@ def check_optimizer(cfg: dict, space: Space) -> None:
     except TypeError as err:
         raise ConfigError(f"optimizer={name}: cannot be built as {cls.__name__}(lower, upper, seed=, x0=, "
                           f"**params) with params {sorted(params)}: {err}") from None
-    except (ValueError, ArithmeticError) as err:
-        raise ConfigError(f"optimizer={name} with params {params}: {type(err).__name__}: {err}") from None
-    try:
+    try:  # an OptimizerError is bad input; any other error is the plugin's bug and keeps its traceback
         X = opt.ask()
-    except (optimizers.OptimizerError, ValueError, ArithmeticError, TypeError) as err:
+    except optimizers.OptimizerError as err:
         raise ConfigError(f"optimizer={name} with params {params}: its first ask() fails: "
                           f"{type(err).__name__}: {err}") from None
     finally:
@@ -136,7 +135,7 @@ def check_job(cfg: dict) -> None:
     if checker is not None:
         try:
             checked = checker(**(cfg["problem"].get("params") or {}))
-        except (ValueError, OSError, TypeError) as err:
+        except (BenchError, AvioError, OSError, TypeError) as err:
             raise ConfigError(f"problem={pname}: {err}") from None
     if isinstance(checked, Space):
         check_optimizer(cfg, checked)
@@ -287,7 +286,7 @@ def preflight_plan(argv: list[str]) -> tuple[int, SweepPlan | None]:
         return 0, None
     try:
         return 0, plan(argv)
-    except ConfigError as err:
+    except (BenchError, AvioError, optimizers.OptimizerError) as err:  # ConfigError and the like; not a bug
         print(f"error: {err}")
     except HydraException as err:
         print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}")

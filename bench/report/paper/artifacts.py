@@ -40,13 +40,15 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from bench.errors import BenchError
+
 SCHEMA = 1
 DRIVES = ("calibration", "holdout")
 STATES = ("position", "velocity", "attitude")
 DRIFT_KEYS = ("t_rel_pct", "r_rel_deg_per_100m", "drift_m_per_m", "max_jump_m")
 
 
-class ArtifactError(ValueError):
+class ArtifactError(BenchError):
     """Stored artifacts are unreadable or inconsistent; the message names the file."""
 
 
@@ -321,17 +323,18 @@ def load_or_compute(problem_config: dict, records: list[dict], store: Path, *, p
     log(f"computing the filter artifacts of {problem_config.get('name')} ({why}) into {folder}")
     started = time.perf_counter()
     log("  building the problem (simulating or loading its drives; compiling the VIO filter on a first run, ~30 s)")
-    from bench.problems.base import ProblemError, build_problem
+    from avio.errors import AvioError
+    from bench.problems.base import build_problem
 
     try:
         problem = build_problem({"problem": problem_config})
-    except (ProblemError, TypeError, ValueError, OSError) as err:
+    except (BenchError, AvioError, TypeError, OSError) as err:  # ProblemError, SpaceError, a DatasetError
         raise ArtifactError(f"cannot rebuild problem {problem_config.get('name')!r} from the records' config "
                             f"({type(err).__name__}: {err})") from None
     log(f"  problem built in {time.perf_counter() - started:.1f} s")
     try:
         art = compute(problem, problem_config, records, folder, profile_points, log)
-    except ValueError as err:  # ProblemError, FilterError, MetricsError, SequenceError: said, not hidden
+    except (BenchError, AvioError) as err:  # ProblemError, FilterError, MetricsError, SequenceError: said, not hidden
         raise ArtifactError(f"running the VIO for the tables of {problem_config.get('name')!r} failed "
                             f"({type(err).__name__}: {err})") from None
     log(f"  artifacts done in {time.perf_counter() - started:.1f} s")

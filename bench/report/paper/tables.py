@@ -32,9 +32,11 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from avio.errors import AvioError
 from avio.reference import PAPER_TABLE1
 from bench import problems
-from bench.records import RecordError, find_job_dirs, read_record
+from bench.errors import BenchError
+from bench.records import find_job_dirs, read_record
 from bench.report.paper.artifacts import DRIFT_KEYS, STATES, ArtifactError, Artifacts, load_or_compute, median_run_index
 from bench.report.paper.values import PAPER_DATA, PAPER_TABLE23, data_label, paper_drive, table1_applies
 
@@ -42,7 +44,7 @@ UNITS = {"position": "m", "velocity": "m/s", "attitude": "deg"}
 __all__ = ["PAPER_TABLE23", "TablesError", "build_tables", "table1", "trajectory_table"]
 
 
-class TablesError(ValueError):
+class TablesError(BenchError):
     """The records cannot make the tables (none finished, mixed problems); the message says why."""
 
 
@@ -269,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         for path in build_tables(args.dirs, args.out, not args.no_figures, args.profile_points,
                                  recompute=args.recompute, log=say):
             print(path)
-    except (TablesError, RecordError) as err:
+    except (BenchError, AvioError) as err:  # TablesError, RecordError, ...; anything else is a bug
         print(f"bench.tables: error: {err}", file=sys.stderr)
         return 2
     return 0

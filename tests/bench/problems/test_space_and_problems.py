@@ -7,6 +7,7 @@ import pytest
 
 from bench import problems
 from bench.problems.analytic import AnalyticProblem, paper_box_space
+from bench.problems.base import ProblemError
 from bench.space import Space, SpaceError
 
 
@@ -54,5 +55,5 @@ def test_analytic_problem_is_batched_with_its_minimum_at_the_truth(name):
 def test_unknown_problem_lists_valid_names():
     with pytest.raises(KeyError, match="valid names: .*rastrigin.*sphere"):
         problems.get("spherez")
-    with pytest.raises(ValueError, match="unknown analytic function"):
+    with pytest.raises(ProblemError, match="unknown analytic function"):
         AnalyticProblem("cube")
