@@ -21,7 +21,8 @@ def _git_commit(root: Path = Path(__file__).resolve().parents[1]) -> str:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
                                 text=True, timeout=5, check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
-                                ":(exclude)results"], cwd=root, capture_output=True, text=True, timeout=5).stdout.strip()
+                                ":(exclude)results"], cwd=root, capture_output=True, text=True,
+                               timeout=5).stdout.strip()
         return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"

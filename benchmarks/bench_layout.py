@@ -36,7 +36,7 @@ from llvmlite import binding as llvm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from avio.filter.kernels import propagate_covariance  # noqa: E402
+from avio.filter.kernels import propagate_covariance
 
 committed = numba.njit(error_model="numpy")(propagate_covariance.py_func)  # uncached: its assembly can be read
 

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import problems  # noqa: E402
-from optimizers import registry  # noqa: E402
+from bench import problems
+from optimizers import registry
 
 PROBLEMS = ("sphere", "rastrigin", "rosenbrock")
 DEFAULT_OPTIMIZERS = ("random", "psoga", "pso", "ga", "cmaes", "tpe", "nevergrad", "nelder_mead", "lbfgsb")

@@ -31,8 +31,9 @@ class Nevergrad(AskTell):
 
         super().__init__(lower, upper)
         if name not in ng.optimizers.registry:
-            some = ", ".join(n for n in ("NGOpt", "CMA", "DE", "TwoPointsDE", "PSO", "OnePlusOne", "TBPSA",
-                                         "RandomSearch", "ScrHammersleySearch", "NelderMead") if n in ng.optimizers.registry)
+            known = ("NGOpt", "CMA", "DE", "TwoPointsDE", "PSO", "OnePlusOne", "TBPSA", "RandomSearch",
+                     "ScrHammersleySearch", "NelderMead")
+            some = ", ".join(n for n in known if n in ng.optimizers.registry)
             raise OptimizerError(f"nevergrad: unknown optimizer name {name!r}; valid names include {some} "
                                  f"({len(ng.optimizers.registry)} in nevergrad.optimizers.registry)")
         self.num_workers = self.int_param("num_workers", num_workers, 1)

@@ -58,7 +58,7 @@ class _ThreadedMinimize(AskTell):
                 asks.put(("done", f"{outcome}: scipy {method}: {res.message} (nit={res.nit}, nfev={res.nfev})"))
             except _Abort:
                 pass
-            except Exception as err:  # noqa: BLE001 - re-raised in the caller's thread with context
+            except Exception as err:
                 asks.put(("error", f"scipy {method} failed: {type(err).__name__}: {err}"))
 
         threading.Thread(target=work, daemon=True, name=f"scipy-{method}").start()
@@ -110,7 +110,6 @@ def _stencil(step: float, central: bool):
     """Batch maker: centre u, then u + h e_i (u - h e_i where u + h leaves the box); central adds u - h e_i."""
 
     def make(u: np.ndarray) -> np.ndarray:
-        d = u.size
         h = np.where(u + step <= 1.0, step, -step)
         plus = u + np.diag(h)
         if not central:

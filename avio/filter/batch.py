@@ -44,9 +44,9 @@ import numpy as np
 
 from avio.calibration import Calibration
 from avio.filter import kernels as _kernels
-from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
 from avio.filter.config import FilterConfig, FilterError, FilterResult
 from avio.filter.prepare import _Prepared, prepare
+from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
 from avio.sequence import Sequence
 
 _THREADS: int | None = None  # set_threads(); None: the default rule
@@ -258,5 +258,6 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
                 for job in jobs:
                     job.result()
     return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
-                        out_nis, out_ldS, out_dof, out_nll, out_slots, used=out_used.astype(bool) if record_used else None,
+                        out_nis, out_ldS, out_dof, out_nll, out_slots,
+                        used=out_used.astype(bool) if record_used else None,
                         meta={"config": result_config})

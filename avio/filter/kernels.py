@@ -173,7 +173,8 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd, triplet_of_frame, uv,
+def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd,
+                triplet_of_frame, uv,
                 valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
                 mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
                 out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,

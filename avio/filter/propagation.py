@@ -136,7 +136,8 @@ def make_substeps(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Substep
     h = (T / m_per)[k_of_step]
     t0 = frame_t_s[k_of_step] + i_in * h
     nodes = t0[:, None] + h[:, None] * np.array([0.0, 0.5, 1.0])[None, :]
-    interp = lambda y: np.stack([np.interp(nodes, imu_t_s, y[:, j]) for j in range(3)], axis=-1)
+    def interp(y):
+        return np.stack([np.interp(nodes, imu_t_s, y[:, j]) for j in range(3)], axis=-1)
     gyro_node = interp(gyro)
     accel_node = interp(accel)
     gyro_frame = np.stack([np.interp(frame_t_s, imu_t_s, gyro[:, j]) for j in range(3)], axis=-1)
@@ -167,7 +168,7 @@ def propagate_interval(q, v, p, b_a, b_g, g_world, sub: Substeps, k: int):
     n = q.shape[0]
     s0, s1 = sub.start[k], sub.start[k + 1]
     Ob = omega_matrix(b_g)
-    q0, v0, p0 = q, v, p
+    _q0, v0, p0 = q, v, p
     R0 = quat_to_matrix(q)
     S = np.zeros((n, 3, 3))
     SS = np.zeros((n, 3, 3))
@@ -281,7 +282,8 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     m = int(max(1, np.ceil(T.max() / max_step_s - 1e-9)))
     h = T / m
     M = len(T)
-    interp = lambda t, y: np.stack([np.interp(t, imu_t_s, y[:, j]) for j in range(3)], axis=-1)
+    def interp(t, y):
+        return np.stack([np.interp(t, imu_t_s, y[:, j]) for j in range(3)], axis=-1)
     q = np.zeros((M, 4))
     q[:, 0] = 1.0
     z3, z33 = np.zeros((M, 3)), np.zeros((M, 3, 3))
@@ -311,7 +313,8 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
                  for x, c, y1, y2, y3, y4 in zip(state, hb, k1, k2, k3, k4)]
         state[0] = state[0] / np.linalg.norm(state[0], axis=1, keepdims=True)
     q, dv, dp, S, SS, Vbg, Pbg = state
-    first = lambda x, fill: np.concatenate([fill[None], x], axis=0)
+    def first(x, fill):
+        return np.concatenate([fill[None], x], axis=0)
     gyro_frame = interp(frame_t_s, gyro)
     return Preintegrated(
         dR=first(quat_to_matrix(q), np.eye(3)), dv=first(dv, np.zeros(3)), dp=first(dp, np.zeros(3)),
@@ -395,6 +398,7 @@ def propagate_preintegrated(R, v, p, b_a, b_g, g_world, pre: Preintegrated, k: i
     R (n, 3, 3) ``R_world_imu``; v, p, b_a, b_g (n, 3). The bias corrections are exact to first
     order in the biases (second-order terms are ~|b_g T|^2, below 1e-8 for real IMUs).
     """
-    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    def f(a):
+        return np.ascontiguousarray(a, dtype=np.float64)
     return _propagate_all(f(R), f(v), f(p), f(b_a), f(b_g), f(g_world), pre.dR[k], pre.dv[k], pre.dp[k], pre.S[k],
                           pre.SS[k], pre.Vbg[k], pre.Pbg[k], float(pre.T_s[k]))

@@ -198,7 +198,8 @@ def make_landmarks(
 
 
 def corrupt_triplets(
-    tracks: TripletTracks, outlier_fraction: float, rng: np.random.Generator, jump_px: tuple[float, float] = (20.0, 60.0)
+    tracks: TripletTracks, outlier_fraction: float, rng: np.random.Generator,
+    jump_px: tuple[float, float] = (20.0, 60.0),
 ) -> tuple[TripletTracks, np.ndarray]:
     """Turn a fraction of the valid features of every triplet into wrong matches.
 
@@ -265,7 +266,8 @@ def simulate_tracks(
     tracks, outlier = corrupt_triplets(tracks, outlier_fraction, rng)
     if not return_details:
         return tracks
-    return tracks, {"uv_true_px": _true_uv(obs, ids, tracks), "landmark_id": ids, "outlier": outlier, "observations": obs}
+    return tracks, {"uv_true_px": _true_uv(obs, ids, tracks), "landmark_id": ids, "outlier": outlier,
+                    "observations": obs}
 
 
 def _true_uv(obs: Observations, ids: np.ndarray, tracks: TripletTracks) -> np.ndarray:

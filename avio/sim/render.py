@@ -74,7 +74,8 @@ def render_image(
     return image.reshape(height, width)
 
 
-def blob_sigma_px(depth_m: np.ndarray, fx_px: float, blob_size_m: float, sigma_range_px: tuple[float, float]) -> np.ndarray:
+def blob_sigma_px(depth_m: np.ndarray, fx_px: float, blob_size_m: float,
+                  sigma_range_px: tuple[float, float]) -> np.ndarray:
     """(m,) blob width in pixels of a landmark of size blob_size_m at depth_m (clipped)."""
     return np.clip(blob_size_m * fx_px / np.asarray(depth_m, float), *sigma_range_px)
 

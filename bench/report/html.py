@@ -204,7 +204,8 @@ def provenance_html(roots: list[Path], records: pd.DataFrame) -> str:
     parts.append("<h3>Commands</h3><ul>" + "".join(f"<li>sweep: <code>{html.escape(c)}</code></li>" for c in commands)
                  + f"<li>this report: <code>{html.escape(rebuild)}</code> (from the folder holding it)</li></ul>")
     commits = _distinct(records, "git_commit")
-    parts.append(f"<h3>Code</h3><p>git commit(s) of the records: {', '.join(f'<code>{html.escape(c)}</code>' for c in commits) or 'unknown'}</p>")
+    listed = ", ".join(f"<code>{html.escape(c)}</code>" for c in commits) or "unknown"
+    parts.append(f"<h3>Code</h3><p>git commit(s) of the records: {listed}</p>")
     if {"started_utc", "ended_utc"} <= set(records.columns):
         start, end = records["started_utc"].dropna().astype(str), records["ended_utc"].dropna().astype(str)
         if len(start) and len(end):
@@ -212,7 +213,8 @@ def provenance_html(roots: list[Path], records: pd.DataFrame) -> str:
     version_cols = sorted(c for c in records.columns if c.startswith("versions."))
     if version_cols:
         rows = [(c[len("versions."):], ", ".join(_distinct(records, c))) for c in version_cols]
-        parts.append("<h3>Versions</h3>" + table_html(pd.DataFrame(rows, columns=["package", "version(s) in the records"])))
+        versions = pd.DataFrame(rows, columns=["package", "version(s) in the records"])
+        parts.append("<h3>Versions</h3>" + table_html(versions))
     machine_cols = sorted(c for c in records.columns if c.startswith("machine."))
     if machine_cols:
         rows = [(c[len("machine."):], ", ".join(_distinct(records, c))) for c in machine_cols]
@@ -248,7 +250,8 @@ def build_page(*, roots, records, runs, board, avg, pairs, vs, ert, targets, fig
         "is computed from the records and is in the CSV files beside this page; click a table header to sort.") + \
         "<h3>Average rank over problems</h3>" + table_html(avg)
 
-    extra = [c for c in board.columns if c.endswith(("_median", "_rate")) and not c.startswith(("best_f_", "evals_", "seconds_"))]
+    extra = [c for c in board.columns
+             if c.endswith(("_median", "_rate")) and not c.startswith(("best_f_", "evals_", "seconds_"))]
     lead, stats, targ, anytime, calerr = [], [], [], [], []
     for problem in problems:
         b = board[board["problem"] == problem]
@@ -257,7 +260,8 @@ def build_page(*, roots, records, runs, board, avg, pairs, vs, ert, targets, fig
             f"best f in the problem's objective units; significance: {test}, Holm-corrected against the "
             f"leader, alpha = {alpha:g}.", "note") + table_html(b[_leaderboard_columns(b)]))
         stats.append(f"<h3>{html.escape(problem)}: pairwise comparisons</h3>"
-                     + paragraph("A12 = P(f_a < f_b) + ½P(f_a = f_b); p_holm corrected over all pairs of this problem.", "note")
+                     + paragraph("A12 = P(f_a < f_b) + ½P(f_a = f_b); p_holm corrected over all pairs of this "
+                                 "problem.", "note")
                      + table_html(pairs[pairs["problem"] == problem].drop(columns="problem"))
                      + f"<h3>{html.escape(problem)}: against the leader</h3>"
                      + table_html(vs[vs["problem"] == problem].drop(columns="problem")))

@@ -110,7 +110,7 @@ class SweepReport(Callback):
         print("Report: building the leaderboard, statistics, tables and figures ...", file=sys.stderr, flush=True)
         try:
             out = build_report([sweep_dir], sweep_dir / "report")
-        except Exception as err:  # noqa: BLE001 - printed and counted in the exit code, never swallowed
+        except Exception as err:
             log.exception("the report of %s failed", sweep_dir)
             return f"{type(err).__name__}: {err}"
         print(f"Records:     {sweep_dir}")

@@ -120,7 +120,7 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
         print(f"{label}: building problem {cfg['problem']['name']}", file=sys.stderr, flush=True)
         try:
             problem = build_problem(cfg)
-        except Exception as exc:  # noqa: BLE001 - a problem that cannot be built fails this job only
+        except Exception as exc:
             log.error("%s: problem %r failed to build: %s", label, cfg["problem"].get("name"), exc)
             return record_failure(job_dir, identity, cfg, exc)
         return run_job(
@@ -140,8 +140,9 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
         return {"status": "failed", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
     except (RunError, ConfigError) as err:
         log.error("%s refused: %s", label, err)
-        return {"status": "refused", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
-    except Exception as err:  # noqa: BLE001 - reported as this job's failure; the sweep goes on
+        return {"status": "refused", "error": {"type": type(err).__name__, "message": str(err)},
+                "job_dir": str(job_dir)}
+    except Exception as err:
         log.exception("%s failed outside its run loop", label)
         return {"status": "failed", "error": {"type": type(err).__name__, "message": str(err)}, "job_dir": str(job_dir)}
 

@@ -170,7 +170,8 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
                               tell_every_s=max(0.5, min(float(progress_every_s), 5.0)), label=label)
         evals_log = EvalLog(job_dir)
         if file_bytes > complete_bytes:
-            log.warning("%s: dropping a torn last line of %s (%d bytes)", label, evals_path, file_bytes - complete_bytes)
+            log.warning("%s: dropping a torn last line of %s (%d bytes)", label, evals_path,
+                        file_bytes - complete_bytes)
             evals_log.truncate_bytes(complete_bytes)
         if on_disk is None:
             write_json_atomic(job_dir / JOB_FILE, header)
@@ -183,7 +184,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
         if evals_log is None:  # refused before anything was written
             raise
         status, stop_reason, error = "failed", "error", _error(exc)
-    except Exception as exc:  # noqa: BLE001 - a failing plugin, problem or disk fails its own job only; recorded below
+    except Exception as exc:
         status, stop_reason, error = "failed", "error", _error(exc)
     finally:
         if bar is not None:

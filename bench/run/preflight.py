@@ -7,8 +7,9 @@ with Hydra's compose API, and each is checked: registered names, plugins, budget
 progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``: its search
 space, its data files), the problem itself (built once per distinct problem config, as the
 first job would build it: a serial sweep's jobs then reuse it), the optimiser built on the job's
-space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job folder that already exists
-(it must hold this very job — same resolved config — and not be in use by another process).
+space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job
+folder that already exists (it must hold this very job — same resolved config — and not be in use by another
+process).
 The first problem found is one clear message and exit code 2; nothing has been written.
 """
 

@@ -27,8 +27,8 @@ from dataclasses import replace
 import numpy as np
 
 from avio.datasets.euroc import DEFAULT_DATA_DIR, EurocDataError, load_euroc, read_euroc
-from avio.filter.config import FilterConfig
 from avio.filter.batch import run
+from avio.filter.config import FilterConfig
 from avio.geometry import geodesic_angle_deg
 from avio.metrics import drift_metrics, pose_errors, position_rmse_objective
 

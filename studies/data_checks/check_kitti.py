@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
-from avio.frontend.klt import track_images, track_observations
-from avio.geometry import so3_exp, so3_log
 from avio.datasets.kitti00 import DEFAULT_DATA_DIR, WINDOWS, kitti00_truth, load_kitti00
 from avio.datasets.kitti_raw import load_kitti_raw
+from avio.frontend.klt import track_images, track_observations
+from avio.geometry import so3_exp, so3_log
 
 
 def kitti00_figures(data: Path) -> None:
@@ -85,10 +85,10 @@ def frontend_figures(data: Path) -> None:
         seq = simulate(SimConfig(duration_s=1.5, output="images"), seed=1, image_dir=tmp)
         obs, _, _ = track_observations(seq.image_paths)
         truth, _ = load_projections(Path(seq.image_paths[0]).parent)
-    lookup = {(int(f), int(l)): uv for f, l, uv in zip(truth.frame_index, truth.landmark_id, truth.uv_px)}
+    lookup = {(int(f), int(lm)): uv for f, lm, uv in zip(truth.frame_index, truth.landmark_id, truth.uv_px)}
     by_frame = {}
-    for f, l, uv in zip(truth.frame_index, truth.landmark_id, truth.uv_px):
-        by_frame.setdefault(int(f), []).append((l, uv))
+    for f, lm, uv in zip(truth.frame_index, truth.landmark_id, truth.uv_px):
+        by_frame.setdefault(int(f), []).append((lm, uv))
     errors, origin = [], {}
     for f, tid, uv in sorted(zip(obs.frame_index, obs.track_id, map(tuple, obs.uv_px)), key=lambda r: (r[1], r[0])):
         if tid not in origin:

@@ -10,8 +10,8 @@ import argparse
 
 import numpy as np
 
-from avio.filter.batch import run
 from avio.datasets.kitti00 import kitti00_truth, load_kitti00, read_kitti00
+from avio.filter.batch import run
 from avio.metrics import position_rmse_objective
 from bench.problems.vio import default_data_dir
 

@@ -17,10 +17,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "avio" / "sim"))
 
-from avio.geometry import geodesic_angle_deg  # noqa: E402
-from avio.sim.render import load_projections, render_frames  # noqa: E402
-from avio.sim.simulator import SimConfig, simulate, simulate_world  # noqa: E402
-from test_simulator import _integrate_rk4  # noqa: E402  (the test's independent RK4 integrator)
+from test_simulator import _integrate_rk4
+
+from avio.geometry import geodesic_angle_deg
+from avio.sim.render import load_projections, render_frames
+from avio.sim.simulator import SimConfig, simulate, simulate_world
 
 
 def main() -> None:

@@ -16,16 +16,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from bench.report.paper.artifacts import objective_profile, space_info
 from bench.problems.base import build_problem
+from bench.report.paper.artifacts import objective_profile, space_info
 from bench.report.paper.figures import profile_figure
 from bench.run.preflight import compose_job
 
 
 def summarise(profile, problem) -> None:
-    anchor = problem.truth if problem.truth is not None else problem.space.reference
     print(f"{'variable':>8} {'f(anchor)':>10} {'rise@5%':>9} {'argmin - anchor':>16}  (units of the variable)")
     for i, name in enumerate(problem.space.names):
         part = profile[profile["variable"] == name]

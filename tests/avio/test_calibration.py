@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from avio.calibration import calibration_errors, ray_error_deg
+from avio.calibration import Calibration, calibration_errors, ray_error_deg
 from avio.geometry import so3_exp
-from avio.calibration import Calibration
 
 SIZE = (1241, 376)
 

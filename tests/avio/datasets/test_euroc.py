@@ -9,10 +9,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from avio.datasets.euroc import CAMCHAIN_FILE, FEATURES_FILE, GRAVITY_MPS2, GT_FILE, IMU_CHAIN_FILE, EurocDataError, load_euroc, read_euroc
+from avio.calibration import Calibration
+from avio.datasets.euroc import (
+    CAMCHAIN_FILE,
+    FEATURES_FILE,
+    GRAVITY_MPS2,
+    GT_FILE,
+    IMU_CHAIN_FILE,
+    EurocDataError,
+    load_euroc,
+    read_euroc,
+)
 from avio.datasets.kalibr import read_camchain, read_imu_noise, read_kalibr_yaml
 from avio.geometry import geodesic_angle_deg, so3_log
-from avio.calibration import Calibration
 from avio.sequence import ImuSamples
 from tests.avio.filter.filter_model import relative_poses, triplet_residuals
 

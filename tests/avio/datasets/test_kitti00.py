@@ -8,9 +8,20 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
-from avio.geometry import geodesic_angle_deg, so3_exp, so3_log
-from avio.datasets.kitti00 import GT_FILE, IMU_FILE, TIME_OFFSET_S, TIMES_FILE, TRACKS_FILE, WINDOWS, KittiDataError, estimate_gravity_gt_world, imu_poses_in_gt_world, load_kitti00
 from avio.calibration import CalibrationPerturbation
+from avio.datasets.kitti00 import (
+    GT_FILE,
+    IMU_FILE,
+    TIME_OFFSET_S,
+    TIMES_FILE,
+    TRACKS_FILE,
+    WINDOWS,
+    KittiDataError,
+    estimate_gravity_gt_world,
+    imu_poses_in_gt_world,
+    load_kitti00,
+)
+from avio.geometry import geodesic_angle_deg, so3_exp, so3_log
 from avio.reference import T_cam_imu_2011_10_03, kitti_2011_10_03_calibration
 from avio.sequence import ImuSamples
 

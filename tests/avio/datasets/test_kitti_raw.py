@@ -9,9 +9,18 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
-from avio.geometry import geodesic_angle_deg
 from avio.datasets.kitti_raw import KittiRawError, cam0_imu_transform, load_kitti_raw, write_kitti_raw
-from avio.datasets.oxts import F, OxtsError, latlon_to_mercator, mercator_scale, mercator_to_latlon, oxts_enu_states, oxts_to_poses, read_oxts_packets
+from avio.datasets.oxts import (
+    F,
+    OxtsError,
+    latlon_to_mercator,
+    mercator_scale,
+    mercator_to_latlon,
+    oxts_enu_states,
+    oxts_to_poses,
+    read_oxts_packets,
+)
+from avio.geometry import geodesic_angle_deg
 from avio.sim.simulator import SimConfig, simulate
 
 DRIVE = "2011_09_26_drive_0001_sync"

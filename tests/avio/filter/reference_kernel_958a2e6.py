@@ -32,8 +32,8 @@ import numba
 import numpy as np
 
 from avio.filter._linalg import matmul, so3_exp, solve
-from avio.filter.propagation import propagate_one, propagate_workspace
 from avio.filter.measurement import feature_residuals, rot_t
+from avio.filter.propagation import propagate_one, propagate_workspace
 
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3
 

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_filter import make_circle_sequence
 
+from avio.calibration import Calibration
 from avio.filter import batch as avio_filter
+from avio.filter.batch import run, set_threads, threads
 from avio.filter.config import FilterConfig, FilterError
 from avio.filter.prepare import prepare
-from avio.filter.batch import run, set_threads, threads
 from avio.geometry import so3_exp
-from avio.calibration import Calibration
-from test_filter import make_circle_sequence
 
 FIELDS = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "diverged", "diverged_at_frame", "n_updates",
           "n_outliers", "sigma", "b_a_mps2", "b_g_radps", "nis", "log_det_S", "dof", "nll", "nll_slots")

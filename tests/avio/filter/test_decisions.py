@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_batch import FIELDS, _candidates
+from test_filter import make_circle_sequence
 
+from avio.calibration import Calibration
+from avio.filter.batch import run, set_threads
 from avio.filter.config import FilterConfig, FilterError
 from avio.filter.prepare import prepare
-from avio.filter.batch import run, set_threads
-from avio.calibration import Calibration
-from test_filter import make_circle_sequence
-from test_batch import FIELDS, _candidates
 
 POSE = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "sigma", "b_a_mps2", "b_g_radps", "n_updates")
 

@@ -9,13 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from avio.calibration import Calibration
+from avio.filter.batch import run
 from avio.filter.config import FilterConfig, FilterError
 from avio.filter.prepare import prepare
-from avio.filter.batch import run
 from avio.geometry import euler_zyx_deg_to_matrix, so3_exp
 from avio.metrics import position_rmse_objective
 from avio.reference import kitti_2011_10_03_calibration
-from avio.calibration import Calibration
 from avio.sequence import GroundTruth, ImuSamples, Sequence, TripletTracks
 
 G = np.array([0.0, 0.0, -9.81])
@@ -224,8 +224,8 @@ def test_kernel_covariance_prediction_is_f_p_ft_plus_q():
 
 
 def test_kernel_slide_moves_the_clones_and_clones_the_shifted_pose():
-    from avio.filter.measurement import shifted_pose
     from avio.filter.kernels import slide
+    from avio.filter.measurement import shifted_pose
 
     rng = np.random.default_rng(1)
     R, p, v = so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3)
@@ -293,7 +293,8 @@ def test_kernel_outlier_tests_match_their_numpy_definitions():
     valid = np.ones(F, bool)
     valid[7] = False
     # The kernels take features last (avio/filter/outliers.py): r (m, F), H (m, d, F), Rm (m, m, F).
-    lanes = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1))
+    def lanes(a):
+        return np.ascontiguousarray(np.moveaxis(a, 0, -1))
     B, z, logdet = np.empty((m, d, F)), np.empty((m, F)), np.empty(F)
     feature_innovations(lanes(r), lanes(H), Sig, lanes(Rm), B, z, logdet)
     S = H @ Sig @ np.swapaxes(H, 1, 2) + Rm

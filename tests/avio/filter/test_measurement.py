@@ -4,12 +4,11 @@ import copy
 
 import numpy as np
 import pytest
+from filter_model import State, inject_correction, measurement_model, relative_poses, triplet_residuals
+from test_filter import make_circle_sequence, perturbed
 
 from avio.filter.config import FilterConfig
-from filter_model import State, inject_correction, measurement_model, relative_poses, triplet_residuals
 from avio.geometry import so3_exp
-
-from test_filter import make_circle_sequence, perturbed
 
 
 def _triplet(rng, n=3, F=6, noise_px=1.0):

@@ -2,11 +2,17 @@
 the closed-form error transition against finite differences."""
 
 import numpy as np
-
-from avio.geometry import so3_exp, so3_log
-from avio.filter.propagation import make_substeps, matrix_to_quat, preintegrate, propagate_interval, propagate_preintegrated, quat_to_matrix
-
 from test_filter import make_circle_sequence
+
+from avio.filter.propagation import (
+    make_substeps,
+    matrix_to_quat,
+    preintegrate,
+    propagate_interval,
+    propagate_preintegrated,
+    quat_to_matrix,
+)
+from avio.geometry import so3_exp, so3_log
 
 
 def _seq():

@@ -12,7 +12,16 @@ import pytest
 from scipy.spatial import cKDTree
 
 from avio.frontend.cache import CacheError, cache_key, cached_track_images
-from avio.frontend.klt import FrontendConfig, FrontendError, _cells, detect_new, read_gray, track_images, track_observations, track_pair
+from avio.frontend.klt import (
+    FrontendConfig,
+    FrontendError,
+    _cells,
+    detect_new,
+    read_gray,
+    track_images,
+    track_observations,
+    track_pair,
+)
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,18 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from avio.sim.camera import CameraSimError, camera_poses, corrupt_triplets, interpolate_pose, make_landmarks, project_landmarks, simulate_tracks
+from avio.calibration import Calibration
 from avio.geometry import geodesic_angle_deg
 from avio.reference import IMAGE_SIZE_PX, kitti_2011_10_03_calibration
-from avio.calibration import Calibration
+from avio.sim.camera import (
+    CameraSimError,
+    camera_poses,
+    corrupt_triplets,
+    interpolate_pose,
+    make_landmarks,
+    project_landmarks,
+    simulate_tracks,
+)
 from avio.sim.trajectory import make_trajectory
 
 FRAME_T = np.arange(0.0, 30.0 + 1e-9, 0.1)

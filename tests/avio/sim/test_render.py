@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from avio.sim.camera import make_landmarks
 from avio.reference import IMAGE_SIZE_PX, kitti_2011_10_03_calibration
+from avio.sim.camera import make_landmarks
 from avio.sim.render import RenderError, load_projections, render_frames, render_image
 from avio.sim.trajectory import make_trajectory
 

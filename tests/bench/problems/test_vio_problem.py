@@ -8,8 +8,8 @@ import pytest
 
 from bench.problems.base import ProblemError
 from bench.problems.synthetic import Synthetic
-from bench.run.loop import Budget, run_job
 from bench.report.paper.tables import build_tables
+from bench.run.loop import Budget, run_job
 from optimizers.random_search import RandomSearch
 
 SHORT = {"sim": {"duration_s": 14.0, "n_stops": 0}}
@@ -118,9 +118,9 @@ def test_yaml_defaults_are_the_python_defaults():
 
     from omegaconf import OmegaConf
 
-    from bench.run.preflight import CONF_DIR
     from bench.problems import get
     from bench.problems.vio import VioParams, VioProblem, _plain
+    from bench.run.preflight import CONF_DIR
 
     checked = 0
     for path in sorted((CONF_DIR / "problem").glob("*.yaml")):

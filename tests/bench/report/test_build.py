@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from record_factory import write_job
 
-from bench.report.build import ReportError, build_report
 from bench.report.__main__ import main
+from bench.report.build import ReportError, build_report
 
 OUTPUTS = ["leaderboard.csv", "runs.csv", "pairwise.csv", "versus_leader.csv", "ranks.csv",
            "targets.csv", "ert.csv", "ecdf.csv", "curves.csv", "report.md", "report.html"]

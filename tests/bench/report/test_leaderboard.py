@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 from record_factory import write_job
 
+from bench.records import load_records
 from bench.report.curves import run_traces
 from bench.report.leaderboard import LeaderboardError, leaderboard, runs_table
-from bench.records import load_records
 from bench.report.stats import summary, versus_leader
 from bench.report.targets import ert_table, hitting_times, problem_targets
 

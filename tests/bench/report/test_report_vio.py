@@ -15,9 +15,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bench.report.build import build_report
 from bench.report.export import main as export_main
 from bench.report.html import SECTIONS
-from bench.report.build import build_report
 
 CHROMIUM = next((p for p in ("/usr/bin/chromium", "/usr/bin/chromium-browser", shutil.which("chromium") or "")
                  if p and Path(p).exists()), None)

@@ -5,7 +5,19 @@ import pandas as pd
 import pytest
 from scipy import stats as sps
 
-from bench.report.stats import StatsError, a12, a12_magnitude, average_ranks, compare, holm, median_ci, pairwise, ranks, summary, versus_leader
+from bench.report.stats import (
+    StatsError,
+    a12,
+    a12_magnitude,
+    average_ranks,
+    compare,
+    holm,
+    median_ci,
+    pairwise,
+    ranks,
+    summary,
+    versus_leader,
+)
 
 
 def runs_frame(samples: dict[tuple[str, str], list[float]], failed: dict | None = None) -> pd.DataFrame:

@@ -5,9 +5,9 @@ import pandas as pd
 import pytest
 from record_factory import write_job
 
+from bench.records import eval_log_frame, load_records
 from bench.report.curves import anytime_curves, incumbent_index, job_trace, quantiles_with_inf, run_traces, step_values
 from bench.report.leaderboard import runs_table
-from bench.records import eval_log_frame, load_records
 from bench.report.targets import TargetsError, ecdf, ert, ert_table, hitting_times, objective_targets, problem_targets
 
 

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.run import loop as run_module
-from bench.run.job import run_configured_job
 from bench.problems.analytic import AnalyticProblem
 from bench.records import JOB_FILE, EvalLog, read_eval_log, read_record
-from bench.run.loop import Budget, RunError, _replay, run_job
+from bench.run import loop as run_module
 from bench.run.identity import identity_differences
+from bench.run.job import run_configured_job
+from bench.run.loop import Budget, RunError, _replay, run_job
 from optimizers.random_search import RandomSearch
 
 
@@ -315,8 +315,8 @@ def test_progress_bar_shows_evaluations_best_f_and_is_redrawn_during_a_long_batc
 
 
 def test_a_problem_that_fails_to_build_records_a_failure_without_blocking_a_later_run(tmp_path, monkeypatch):
-    from bench.run import job as job_module
     from bench.problems import ProblemError
+    from bench.run import job as job_module
 
     cfg = {"problem": {"name": "sphere", "params": {}}, "optimizer": {"name": "random", "params": {"batch_size": 8}},
            "seed": 0, "budget": {"evals": 16, "seconds": None}, "progress": False, "plugins": []}

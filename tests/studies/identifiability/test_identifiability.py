@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+
 def _runs(module, config: str, best_f, f_truth, holdout, holdout_truth, evals=400) -> pd.DataFrame:
     n = len(best_f)
     rows = {"config": config, "objective": "innovation_nll", "drives": 4, "noise_realisations": 1, "free": 7,
