@@ -62,7 +62,8 @@ class Space:
     def from_dict(cls, variables: dict) -> "Space":
         """From ``{name: {unit, lower, upper, reference}}`` (the shape of the yaml configs)."""
         names = tuple(variables)
-        get = lambda key: np.array([float(variables[n][key]) for n in names])  # noqa: E731
+        def get(key):
+            return np.array([float(variables[n][key]) for n in names])
         try:
             return cls(names, tuple(str(variables[n].get("unit", "")) for n in names),
                        get("lower"), get("upper"), get("reference"))

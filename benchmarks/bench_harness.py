@@ -30,8 +30,9 @@ def main() -> None:
     overheads = []
     for repeat in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
-            make = lambda: RandomSearch(problem.space.lower, problem.space.upper, seed=repeat,  # noqa: E731
-                                        batch_size=args.batch)
+            def make():
+                return RandomSearch(problem.space.lower, problem.space.upper, seed=repeat,
+                                                    batch_size=args.batch)
             record = run_job(problem, make, Budget(evals=args.evals), Path(tmp) / "job",
                              {"problem": "sphere", "seed": repeat}, progress_every_s=1e9)
         overhead = record["wall_s"] / record["eval_s"] - 1.0

@@ -168,7 +168,8 @@ def write_kitti_raw(
     if t[0] < 0 or t[-1] >= 86400.0:
         raise KittiRawError(f"sequence {sequence.name!r}: frame times must lie within one day, got "
                             f"[{t[0]}, {t[-1]}] s")
-    interp = lambda y: np.stack([np.interp(t, sequence.imu.t_s, y[:, j]) for j in range(3)], 1)  # noqa: E731
+    def interp(y):
+        return np.stack([np.interp(t, sequence.imu.t_s, y[:, j]) for j in range(3)], 1)
     gt = sequence.truth
     packets = packets_from_states(gt.p_world_imu_m, gt.R_world_imu, gt.v_world_imu_mps,
                                   interp(sequence.imu.accel_imu_mps2),

@@ -149,8 +149,10 @@ def packets_from_states(
     yaw_pitch_roll = Rotation.from_matrix(R_world_imu).as_euler("ZYX")
     R_level = Rotation.from_euler("Z", yaw_pitch_roll[:, :1]).as_matrix()
     # level-frame vectors: R_level^T (world vector); body vectors go to the world first.
-    level = lambda w: np.einsum("nji,nj->ni", R_level, w)  # noqa: E731
-    to_world = lambda b: np.einsum("nij,nj->ni", R_world_imu, b)  # noqa: E731
+    def level(w):
+        return np.einsum("nji,nj->ni", R_level, w)
+    def to_world(b):
+        return np.einsum("nij,nj->ni", R_world_imu, b)
     out = np.zeros((n, len(OXTS_FIELDS)))
     out[:, F["lat"]], out[:, F["lon"]], out[:, F["alt"]] = lat, lon, alt0 + p[:, 2]
     out[:, [F["yaw"], F["pitch"], F["roll"]]] = yaw_pitch_roll

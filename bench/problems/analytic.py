@@ -22,7 +22,8 @@ _UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "roll": "deg", "pitch"
 def paper_box_space() -> Space:
     """The paper's Table 1 variables, bounds and reference."""
     names = tuple(PAPER_TABLE1)
-    col = lambda i: np.array([PAPER_TABLE1[n][i] for n in names])  # noqa: E731
+    def col(i):
+        return np.array([PAPER_TABLE1[n][i] for n in names])
     return Space(names, tuple(_UNITS[n] for n in names), col(1), col(2), col(0))
 
 

@@ -72,7 +72,8 @@ def runs_table(records: pd.DataFrame) -> pd.DataFrame:
     if bad_seed.any():
         job = records.loc[bad_seed, "job_dir"].iloc[0]
         raise LeaderboardError(f"{job}/record.json: seed {records.loc[bad_seed, 'seed'].iloc[0]!r} is not an integer")
-    numeric = lambda name: pd.to_numeric(_column(records, name), errors="coerce").astype(float)  # noqa: E731
+    def numeric(name):
+        return pd.to_numeric(_column(records, name), errors="coerce").astype(float)
     runs = pd.DataFrame({
         "job_dir": records["job_dir"].astype(str),
         "problem": records["problem"].astype(str),

@@ -90,7 +90,8 @@ def filter_figures(data_dir, seeds: list[int], base: FilterConfig, windows=WINDO
                            / seq.path_length_m() * 100)
                 drift.append(drift_metrics(result.p_world_imu_m, result.R_world_imu, seq.truth)["drift_m_per_m"][0])
                 div += int(result.diverged[0])
-            fmt = lambda v, d: f"{np.median(v):.{d}f} [{np.min(v):.{d}f}, {np.max(v):.{d}f}]"  # noqa: E731
+            def fmt(v, d):
+                return f"{np.median(v):.{d}f} [{np.min(v):.{d}f}, {np.max(v):.{d}f}]"
             drift_m_per_m = np.nanmedian(drift) if np.isfinite(drift).any() else np.nan
             print(f"{t_a:4.0f}-{t_b:<4.0f} {init:>13} {seq.path_length_m():7.2f} {fmt(f, 3):>22} "
                   f"{fmt(att, 2):>20} {np.median(end):16.2f} {drift_m_per_m:10.4f} {div:>5}/{len(seeds)}")

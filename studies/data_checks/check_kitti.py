@@ -26,7 +26,8 @@ def kitti00_figures(data: Path) -> None:
         seq = load_kitti00(data / "kitti00", a, b, max_gt_rate_misfit_radps=None)  # paper_928m holds defects
         t, gt, imu = seq.frame_t_s, seq.truth, seq.imu
         cum = cumulative_trapezoid(imu.gyro_imu_radps, imu.t_s, axis=0, initial=0.0)
-        at = lambda x: np.stack([np.interp(x, imu.t_s, cum[:, j]) for j in range(3)], 1)  # noqa: E731
+        def at(x):
+            return np.stack([np.interp(x, imu.t_s, cum[:, j]) for j in range(3)], 1)
         w_imu = (at(t[1:]) - at(t[:-1])) / np.diff(t)[:, None]
         R0 = gt.R_world_imu[:-1]
         w_gt = so3_log(np.swapaxes(R0, 1, 2) @ gt.R_world_imu[1:]) / np.diff(t)[:, None]
@@ -64,7 +65,8 @@ def raw_figures(data: Path) -> None:
     length = np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum()
     integ = np.trapezoid(np.hypot(v[:, 0], v[:, 1]), t)
     pv = cumulative_trapezoid(v, t, axis=0, initial=0.0)
-    chord = lambda q: np.unwrap(np.arctan2(q[10:, 1] - q[:-10, 1], q[10:, 0] - q[:-10, 0]))  # noqa: E731
+    def chord(q):
+        return np.unwrap(np.arctan2(q[10:, 1] - q[:-10, 1], q[10:, 0] - q[:-10, 0]))
     print(f"raw 2011_09_26_drive_0001: path {length:.2f} m vs integrated OXTS speed {integ:.2f} m "
           f"({100 * (length / integ - 1):+.2f}%), end point off by {np.linalg.norm(pv[-1] - p[-1]):.2f} m; "
           f"heading change {np.degrees(chord(p)[-1] - chord(p)[0]):.2f} deg (positions) vs "

@@ -27,7 +27,8 @@ def test_paper_rule_fires_exactly_when_best_moves_less_than_epsilon():
     opt = PsoGa(LOWER, UPPER, seed=3, pop_size=10, stop_rule="paper", epsilon=1e-3)
     counter = iter(range(10**6))
     # every new point beats all before it, so the best jumps to a fresh point each iteration ...
-    improving = lambda X: -np.array([next(counter) for _ in range(len(X))], float)  # noqa: E731
+    def improving(X):
+        return -np.array([next(counter) for _ in range(len(X))], float)
     X = opt.ask()
     opt.tell(X, improving(X))
     moves = []
@@ -48,7 +49,8 @@ def test_paper_rule_measures_the_move_in_normalised_units():
     # rescaling one variable's unit (metres -> millimetres) must not change when the rule fires
     def stop_iteration(lower, upper):
         opt = PsoGa(lower, upper, seed=1, pop_size=6, stop_rule="paper", epsilon=1e-3)
-        f = lambda X: np.linalg.norm((X - lower) / (upper - lower) - 0.4, axis=1)  # noqa: E731
+        def f(X):
+            return np.linalg.norm((X - lower) / (upper - lower) - 0.4, axis=1)
         X = opt.ask()
         opt.tell(X, f(X))
         while opt.stop is None and opt.iterations < 200:

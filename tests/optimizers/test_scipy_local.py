@@ -76,7 +76,8 @@ def test_nelder_mead_asks_one_point_and_starts_at_x0():
 
 def test_lbfgsb_respects_bounds_when_the_minimum_is_outside():
     opt = LBfgsB(LOWER, UPPER, seed=0, x0=X0)
-    shift = lambda X: np.sum(((X - LOWER) / (UPPER - LOWER) - 1.7) ** 2, axis=1)  # noqa: E731
+    def shift(X):
+        return np.sum(((X - LOWER) / (UPPER - LOWER) - 1.7) ** 2, axis=1)
     while opt.stop is None:
         X = opt.ask()
         assert np.all((X >= LOWER) & (X <= UPPER))

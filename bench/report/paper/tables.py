@@ -80,7 +80,8 @@ def table1(art: Artifacts) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     names = list(PAPER_TABLE1)
     cal = art.calibrations
     paper_cols = [f"paper.{n}" for n in names]
-    source = lambda s: cal[cal["source"] == s]  # noqa: E731
+    def source(s):
+        return cal[cal["source"] == s]
     paper = table1_applies(art.manifest["problem"])
     rows = {"reference (ours)": source("reference")[paper_cols].to_numpy()[0]}
     if paper:
@@ -266,7 +267,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.profile_points < 2:
         print("bench.tables: error: --profile-points must be at least 2", file=sys.stderr)
         return 2
-    say = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    def say(msg):
+        return print(msg, file=sys.stderr, flush=True)
     try:
         for path in build_tables(args.dirs, args.out, not args.no_figures, args.profile_points,
                                  recompute=args.recompute, log=say):

@@ -44,7 +44,8 @@ def _mean_gyro(imu: ImuSamples, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
     from scipy.integrate import cumulative_trapezoid
 
     cum = cumulative_trapezoid(imu.gyro_imu_radps, imu.t_s, axis=0, initial=0.0)
-    at = lambda t: np.stack([np.interp(t, imu.t_s, cum[:, j]) for j in range(3)], 1)  # noqa: E731
+    def at(t):
+        return np.stack([np.interp(t, imu.t_s, cum[:, j]) for j in range(3)], 1)
     return (at(t1) - at(t0)) / (t1 - t0)[:, None]
 
 

@@ -68,7 +68,8 @@ def test_real_path_and_heading_match_integrated_oxts_velocity(real):
     assert np.linalg.norm(p_from_v - p, axis=1).max() < 0.01 * length
     # Heading change over the drive: course of 1-s chords of the positions and of the
     # integrated velocities (ve, vn); the car turns ~8 deg and both agree to within 1 deg.
-    chord = lambda q: np.unwrap(np.arctan2(q[10:, 1] - q[:-10, 1], q[10:, 0] - q[:-10, 0]))  # noqa: E731
+    def chord(q):
+        return np.unwrap(np.arctan2(q[10:, 1] - q[:-10, 1], q[10:, 0] - q[:-10, 0]))
     turn_p, turn_v = np.degrees(chord(p)[-1] - chord(p)[0]), np.degrees(chord(p_from_v)[-1] - chord(p_from_v)[0])
     assert -10.0 < turn_p < -6.0
     assert abs(turn_p - turn_v) < 1.0
@@ -229,7 +230,8 @@ def test_real_level_frame_fields_and_the_vl_sign_quirk(raw_dir):
     packets = read_oxts_packets(raw_dir / DRIVE / "oxts" / "data")
     _, R, v = oxts_enu_states(packets)
     R_level = Rotation.from_euler("Z", packets[:, [F["yaw"]]]).as_matrix()
-    level = lambda b: np.einsum("nji,nj->ni", R_level, np.einsum("nij,nj->ni", R, b))  # noqa: E731
+    def level(b):
+        return np.einsum("nji,nj->ni", R_level, np.einsum("nij,nj->ni", R, b))
     a = level(packets[:, [F["ax"], F["ay"], F["az"]]])
     np.testing.assert_allclose(a, packets[:, [F["af"], F["al"], F["au"]]], atol=0.03)
     w = level(packets[:, [F["wx"], F["wy"], F["wz"]]])

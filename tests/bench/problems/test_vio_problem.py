@@ -68,7 +68,8 @@ def test_tables_rebuild_from_records(tmp_path, problem):
     cfg = {"problem": {"name": "synthetic", "params": {"holdout": None, **SHORT}},
            "optimizer": {"name": "random", "params": {"batch_size": 4}}, "budget": {"evals": 8}}
     for seed in range(2):
-        make = lambda: RandomSearch(problem.space.lower, problem.space.upper, seed=seed, batch_size=4)  # noqa: E731
+        def make():
+            return RandomSearch(problem.space.lower, problem.space.upper, seed=seed, batch_size=4)
         run_job(problem, make, Budget(evals=8), tmp_path / "runs" / f"seed{seed}",
                 {"problem": "synthetic", "optimizer": "random", "seed": seed}, config={**cfg, "seed": seed})
     written = build_tables([tmp_path / "runs"], tmp_path / "tables", figures=True, profile_points=3)

@@ -130,7 +130,8 @@ def test_median_ci_is_seeded_contains_median_and_handles_degenerate_samples():
 def test_summary_interval_does_not_depend_on_other_groups():
     base = runs_frame({("p", "a"): [1, 5, 2, 8, 3]})
     more = runs_frame({("p", "a"): [1, 5, 2, 8, 3], ("p", "z"): [0, 1, 2], ("o", "a"): [4, 4]})
-    row = lambda t: t[(t["problem"] == "p") & (t["optimizer"] == "a")].iloc[0]  # noqa: E731
+    def row(t):
+        return t[(t["problem"] == "p") & (t["optimizer"] == "a")].iloc[0]
     assert row(summary(base)).equals(row(summary(more)))
     s = row(summary(base))
     assert (s["median"], s["q25"], s["q75"], s["n_valid"]) == (3, 2, 5, 5)

@@ -72,7 +72,8 @@ class _StopsAfterTwo(RandomSearch):
 
 def test_optimizer_stop_reason_is_recorded(tmp_path):
     problem = AnalyticProblem("sphere")
-    make = lambda: _StopsAfterTwo(problem.space.lower, problem.space.upper, seed=0, batch_size=8)  # noqa: E731
+    def make():
+        return _StopsAfterTwo(problem.space.lower, problem.space.upper, seed=0, batch_size=8)
     record = _run(tmp_path, Budget(evals=1000), problem=problem, make=make)
     assert record["stop_reason"] == "optimizer: converged: two batches told"
     assert record["n_evals"] == 16
@@ -85,7 +86,8 @@ class _Raises(RandomSearch):
 
 def test_a_raising_optimizer_fails_its_job_with_the_error_recorded(tmp_path):
     problem = AnalyticProblem("sphere")
-    make = lambda: _Raises(problem.space.lower, problem.space.upper, seed=0, batch_size=8)  # noqa: E731
+    def make():
+        return _Raises(problem.space.lower, problem.space.upper, seed=0, batch_size=8)
     record = _run(tmp_path, problem=problem, make=make)
     assert record["status"] == "failed" and record["stop_reason"] == "error"
     assert record["error"]["type"] == "FloatingPointError"
@@ -100,7 +102,8 @@ class _OutOfBounds(RandomSearch):
 
 def test_points_outside_the_bounds_fail_the_job(tmp_path):
     problem = AnalyticProblem("sphere")
-    make = lambda: _OutOfBounds(problem.space.lower, problem.space.upper, seed=0)  # noqa: E731
+    def make():
+        return _OutOfBounds(problem.space.lower, problem.space.upper, seed=0)
     record = _run(tmp_path, problem=problem, make=make)
     assert record["status"] == "failed" and "outside" in record["error"]["message"]
     assert record["n_evals"] == 0
