@@ -3,7 +3,7 @@
 Every error class of ``bench`` (``ProblemError``, ``SpaceError``, ``RunError``, ``ConfigError``,
 ``RecordError``, ``ReportError``, ...) derives from :class:`BenchError`, keeping its own name and
 module. The command-line entries (``python -m bench``, ``python -m bench.report``,
-``bench.export``, ``bench.tables``) catch ``BenchError`` -- with ``avio.errors.AvioError`` and
+``bench.export``, ``bench.report.paper``) catch ``BenchError`` -- with ``avio.errors.AvioError`` and
 ``optimizers.OptimizerError`` where errors of those packages can arrive -- and print one message;
 anything else that escapes is a bug and keeps its traceback.
 

@@ -50,12 +50,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from avio.calibration import Calibration  # noqa: E402
-from avio.filter.batch import run, set_threads  # noqa: E402
-from avio.filter.config import FilterConfig  # noqa: E402
-from avio.filter.prepare import prepare  # noqa: E402
-from avio.geometry import so3_exp  # noqa: E402
-from avio.metrics import pose_errors  # noqa: E402
+from avio.calibration import Calibration
+from avio.filter.batch import run, set_threads
+from avio.filter.config import FilterConfig
+from avio.filter.prepare import prepare
+from avio.geometry import so3_exp
+from avio.metrics import pose_errors
 
 
 def _sequences(names, seed, data_dir):

@@ -67,9 +67,9 @@ def _replace(src: str, old: str, new: str, where: str = "avio/filter/update.py")
 def patch_update(src: str) -> str:
     """avio/filter/update.py with every phase of the update wrapped in a repeat loop (module docstring)."""
     src = _replace(src, "           record, decided):", "           record, decided, rep):")
-    src = _wrap(src, "    measure(R, p, v, cp0", "    # Without baseline", 0)
+    src = _wrap(src, "    measure(R, p, v, cp0", "    # Eq. (36): without baseline", 0)
     src = _wrap(src, "    matmul(C, Pi, CP)\n", "    for f in range(F):\n        inl[f] = ok[f]", 1)
-    src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py)", 2)
+    src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py", 2)
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
     src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
     src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        beta[b] = X[b, d]", 4)

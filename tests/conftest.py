@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -22,3 +23,19 @@ def shared_data() -> Path:
     if not path.is_dir():
         pytest.skip(f"real data folder {path} is absent (set AVIO_DATA to use another)")
     return path
+
+
+@pytest.fixture
+def load_script(request):
+    """``load_script("name")``: the script ``name.py`` of the folder this test mirrors
+    (tests/benchmarks/… -> benchmarks/name.py, tests/studies/objective/… -> studies/objective/name.py).
+    Scripts are files, not a package, so they load by path."""
+    folder = REPO_ROOT / Path(request.fspath).parent.relative_to(REPO_ROOT / "tests")
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

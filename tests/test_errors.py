@@ -126,7 +126,7 @@ def test_bad_input_from_an_optimiser_or_a_problem_is_still_one_message(tmp_path,
     assert not (tmp_path / "sweep").exists()
 
 
-# --- the report's edges: python -m bench.report, bench.export, bench.tables ------------------------
+# --- the report's edges: python -m bench.report, bench.export, bench.report.paper ------------------------
 
 def _raiser(exc: BaseException):
     def run(*args, **kwargs):

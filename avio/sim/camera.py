@@ -57,7 +57,7 @@ def interpolate_pose(truth: GroundTruth, frame_t_s: np.ndarray, t_s: np.ndarray)
     frame_t_s = np.asarray(frame_t_s, float)
     t_s = np.asarray(t_s, float)
     if len(frame_t_s) < 2:
-        raise CameraSimError(f"avio.camera_sim: interpolating a truth needs >= 2 frames, got {len(frame_t_s)}")
+        raise CameraSimError(f"avio.sim.camera: interpolating a truth needs >= 2 frames, got {len(frame_t_s)}")
     hermite = CubicHermiteSpline(frame_t_s, truth.p_world_imu_m, truth.v_world_imu_mps, axis=0, extrapolate=True)
     R = RotationSpline(frame_t_s, Rotation.from_matrix(truth.R_world_imu))(
         np.clip(t_s, frame_t_s[0], frame_t_s[-1])
@@ -82,7 +82,7 @@ def camera_poses(
     calibration: batch of 1.
     """
     if len(calibration) != 1:
-        raise CameraSimError(f"avio.camera_sim: calibration must be a batch of 1, got {len(calibration)}")
+        raise CameraSimError(f"avio.sim.camera: calibration must be a batch of 1, got {len(calibration)}")
     frame_t_s = np.asarray(frame_t_s, float)
     offset = float(calibration.time_offset_s[0])
     if isinstance(truth, TrajectoryFn):
@@ -92,7 +92,7 @@ def camera_poses(
         R_world_imu, p_world_imu = truth.R_world_imu, truth.p_world_imu_m
         if len(R_world_imu) != len(frame_t_s):
             raise CameraSimError(
-                f"avio.camera_sim: truth has {len(R_world_imu)} poses for {len(frame_t_s)} frame times"
+                f"avio.sim.camera: truth has {len(R_world_imu)} poses for {len(frame_t_s)} frame times"
             )
     else:
         R_world_imu, p_world_imu = interpolate_pose(truth, frame_t_s, frame_t_s + offset)
@@ -117,7 +117,7 @@ def project_landmarks(
     """
     landmarks_world = np.asarray(landmarks_world, float)
     if landmarks_world.ndim != 2 or landmarks_world.shape[1] != 3:
-        raise CameraSimError(f"avio.camera_sim: landmarks_world must be (n_lm, 3), got {landmarks_world.shape}")
+        raise CameraSimError(f"avio.sim.camera: landmarks_world must be (n_lm, 3), got {landmarks_world.shape}")
     R_world_cam, p_world_cam = camera_poses(truth, frame_t_s, calibration)
     fx, fy = calibration.fx_px[0], calibration.fy_px[0]
     cx, cy = calibration.cx_px[0], calibration.cy_px[0]
@@ -173,7 +173,7 @@ def make_landmarks(
     """
     p, s = _path_arclength(np.asarray(truth.p_world_imu_m, float))
     if len(p) < 2:
-        raise CameraSimError("avio.camera_sim: make_landmarks needs a truth path that moves")
+        raise CameraSimError("avio.sim.camera: make_landmarks needs a truth path that moves")
     heading = p[-1] - p[-2]
     extension = p[-1] + np.outer(np.arange(1.0, extend_m + 1.0), heading / np.linalg.norm(heading))
     p = np.vstack([p, extension])
@@ -208,7 +208,7 @@ def corrupt_triplets(
     Returns the corrupted tracks and the (n_triplets, n_feat) outlier mask.
     """
     if not 0.0 <= outlier_fraction <= 1.0:
-        raise CameraSimError(f"avio.camera_sim: outlier_fraction must be in [0, 1], got {outlier_fraction}")
+        raise CameraSimError(f"avio.sim.camera: outlier_fraction must be in [0, 1], got {outlier_fraction}")
     shape = tracks.valid.shape
     outlier = tracks.valid & (rng.random(shape) < outlier_fraction)
     image = rng.integers(0, 3, shape)
@@ -252,7 +252,7 @@ def simulate_tracks(
     mask and the ``observations``.
     """
     if pixel_noise_px < 0:
-        raise CameraSimError(f"avio.camera_sim: pixel_noise_px must be >= 0, got {pixel_noise_px}")
+        raise CameraSimError(f"avio.sim.camera: pixel_noise_px must be >= 0, got {pixel_noise_px}")
     frame_t_s = np.asarray(frame_t_s, float)
     obs = project_landmarks(truth, frame_t_s, calibration, landmarks_world, image_size_px, min_depth_m, max_depth_m)
     noisy = obs.uv_px if noise_per_triplet else obs.uv_px + pixel_noise_px * rng.standard_normal(obs.uv_px.shape)

@@ -13,11 +13,11 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
 - ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
   ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
 - ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png`` (150 dpi, PDF beside);
-- ``tables/`` — the paper's Tables 1–3 and figures (``bench.tables``), when the records hold a
+- ``tables/`` — the paper's Tables 1–3 and figures (``bench.report.paper.tables``), when the records hold a
   VIO problem (``--no-tables`` skips them). What they need from the filter is computed once
-  and stored in ``DIR/artifacts/`` (``bench.artifacts``); later reports read it back and never
+  and stored in ``DIR/artifacts/`` (``bench.report.paper.artifacts``); later reports read it back and never
   re-run the VIO unless ``--recompute`` is given;
-- ``report.html`` — the whole report as one self-contained page (``bench.html_report``):
+- ``report.html`` — the whole report as one self-contained page (``bench.report.html``):
   every figure embedded, sortable tables, the provenance of the records;
 - ``report.md`` — the same as a Markdown document linking the files.
 
@@ -126,7 +126,7 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
     pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
     alpha: significance level after Holm correction, in (0, 1); seed: for the bootstrap
     intervals; paper_tables: also build the paper's Tables 1–3 and figures through
-    ``bench.tables``; recompute: re-run the VIO for them even when stored artifacts match;
+    ``bench.report.paper.tables``; recompute: re-run the VIO for them even when stored artifacts match;
     log: where progress lines go (default stderr; None for silence).
     Raises ReportError / RecordError / LeaderboardError on bad input.
     """

@@ -75,7 +75,7 @@ _BUILT: set[str] = set()  # problem configs announced (build_problem caches the 
 
 
 def _built_space(cfg: dict) -> Space:
-    """The space of the job's problem, built as a job builds it (``bench.job.build_problem``, cached
+    """The space of the job's problem, built as a job builds it (``bench.problems.build_problem``, cached
     per process, so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError."""
     from bench.problems.base import build_problem
 

@@ -34,8 +34,8 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.datasets.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks  # noqa: E402
-from avio.reference import CX_PX, CY_PX, FX_PX, FY_PX, kitti_2011_10_03_calibration  # noqa: E402
+from avio.datasets.kitti00 import TRACKS_FILE, read_kitti00, read_real_tracks
+from avio.reference import CX_PX, CY_PX, FX_PX, FY_PX, kitti_2011_10_03_calibration
 
 MIN_STEP_M = 0.3  # frame pairs closer than this carry too little translation to read a direction from
 MIN_COMMON = 30  # landmarks seen in both frames, for the essential matrix

@@ -34,15 +34,15 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.calibration import (  # noqa: E402
+from avio.calibration import (
     Calibration,
     calibration_errors,
     ray_error_deg,
 )
-from avio.metrics import position_rmse_objective  # noqa: E402
-from bench.problems.synthetic import Synthetic, SyntheticParams  # noqa: E402
-from bench.problems.vio import _plain  # noqa: E402
-from bench.report import stats  # noqa: E402
+from avio.metrics import position_rmse_objective
+from bench.problems.synthetic import Synthetic, SyntheticParams
+from bench.problems.vio import _plain
+from bench.report import stats
 
 ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
 

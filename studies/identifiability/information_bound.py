@@ -44,12 +44,12 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
-from objective_bias import DRIVE, FRESH_SEED0  # noqa: E402  (studies/objective/objective_bias.py)
+from objective_bias import DRIVE, FRESH_SEED0
 
-from avio.calibration import calibration_errors, ray_error_deg  # noqa: E402
-from avio.filter.batch import set_threads  # noqa: E402
-from avio.sim.simulator import SimConfig, simulate  # noqa: E402
-from bench.problems.synthetic import Synthetic  # noqa: E402
+from avio.calibration import calibration_errors, ray_error_deg
+from avio.filter.batch import set_threads
+from avio.sim.simulator import SimConfig, simulate
+from bench.problems.synthetic import Synthetic
 
 #: central-difference step per local-space variable (px, deg, m), about the size of the scatter
 #: to be predicted: with a third of it the mean Hessians over 80 drives are not positive definite

@@ -30,9 +30,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.filter.batch import set_threads  # noqa: E402
-from bench.problems.synthetic import Synthetic  # noqa: E402
-from bench.problems.vio import _plain  # noqa: E402
+from avio.filter.batch import set_threads
+from bench.problems.synthetic import Synthetic
+from bench.problems.vio import _plain
 
 DEFAULT_T = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.1, 1.3)
 

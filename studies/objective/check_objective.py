@@ -34,9 +34,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.calibration import ray_error_deg  # noqa: E402
-from avio.objectives import OBJECTIVES  # noqa: E402
-from bench.problems.synthetic import Synthetic  # noqa: E402
+from avio.calibration import ray_error_deg
+from avio.objectives import OBJECTIVES
+from bench.problems.synthetic import Synthetic
 
 PERFECT = {"imu_noise_on": False, "pixel_noise_px": 0.0, "outlier_fraction": 0.0}
 #: half-width of each profile around the truth (px, deg, m in the paper space's order)

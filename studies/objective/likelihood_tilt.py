@@ -36,13 +36,13 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
-from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se  # noqa: E402  (studies/objective/objective_bias.py)
+from objective_bias import DRIVE, FRESH_SEED0, NOISE, mean_se
 
-from avio.filter.batch import set_threads  # noqa: E402
-from avio.objectives import scored_frames  # noqa: E402
-from avio.sequence import ImuNoise  # noqa: E402
-from avio.sim.simulator import SimConfig, simulate  # noqa: E402
-from bench.problems.synthetic import Synthetic  # noqa: E402
+from avio.filter.batch import set_threads
+from avio.objectives import scored_frames
+from avio.sequence import ImuNoise
+from avio.sim.simulator import SimConfig, simulate
+from bench.problems.synthetic import Synthetic
 
 PARTS = ("composite", "joint", "joint_nis", "joint_ldS", "used")
 #: besides the slopes, the objective's curvature along the variable (per unit^2)

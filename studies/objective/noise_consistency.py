@@ -25,9 +25,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.filter.batch import set_threads  # noqa: E402
-from bench.problems.base import build_problem  # noqa: E402
-from bench.run.preflight import compose_job  # noqa: E402
+from avio.filter.batch import set_threads
+from bench.problems.base import build_problem
+from bench.run.preflight import compose_job
 
 
 def main(argv=None) -> None:

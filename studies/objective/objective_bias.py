@@ -49,12 +49,12 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
-from identifiability import best_calibrations, load  # noqa: E402  (studies/identifiability/identifiability.py)
+from identifiability import best_calibrations, load
 
-from avio.calibration import Calibration  # noqa: E402
-from avio.filter.batch import set_threads  # noqa: E402
-from avio.sim.simulator import SimConfig, simulate  # noqa: E402
-from bench.problems.synthetic import Synthetic  # noqa: E402
+from avio.calibration import Calibration
+from avio.filter.batch import set_threads
+from avio.sim.simulator import SimConfig, simulate
+from bench.problems.synthetic import Synthetic
 
 DRIVE = "paper_540m"
 FRESH_SEED0 = 100  # second entropy word of the fresh drives: (s, 100 + i)

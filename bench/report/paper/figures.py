@@ -1,4 +1,4 @@
-"""The paper's figures rebuilt from run records and stored filter artifacts (``bench.artifacts``).
+"""The paper's figures rebuilt from run records and stored filter artifacts (``bench.report.paper.artifacts``).
 
 Each figure is a PNG (150 dpi) with a PDF beside it (``bench.figures.save_figure``), drawn on
 ``matplotlib.figure.Figure`` (no pyplot, no backend switch at import):

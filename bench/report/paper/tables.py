@@ -1,6 +1,6 @@
 """The paper's Tables 1–3 rebuilt from run records of a VIO problem, with the paper's values beside.
 
-    python -m bench.tables RUNS_DIR... --out results/synthetic [--recompute]
+    python -m bench.report.paper RUNS_DIR... --out results/synthetic [--recompute]
 
 - Table 1: the calibration variables in the paper's parameterisation: reference, the paper's
   Table 1 bounds, truth (when known), the paper's PSO–GA, and each optimiser's calibrated
@@ -15,7 +15,7 @@
   The paper's values (``bench.paper``) stand beside ours only on the drives that reproduce the
   paper's, labelled with what is real and what is simulated.
 
-Everything needing the filter comes from ``bench.artifacts`` (computed once per sweep and
+Everything needing the filter comes from ``bench.report.paper.artifacts`` (computed once per sweep and
 stored in ``<sweep>/artifacts/``), so the tables rebuild from records in well under a second;
 the problem is rebuilt from the records' own config only when the artifacts are computed.
 Written as CSV, Markdown and LaTeX.
@@ -215,7 +215,7 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
     """Write Tables 1–3 (and, with ``figures``, the paper's figures and the objective profile) for
     every VIO problem found under ``dirs`` into ``out`` (a subfolder per problem when there are
     several). Filter results come from ``store`` (default ``default_store(dirs)``), computed
-    there first when missing or stale (``bench.artifacts``). Returns the files written."""
+    there first when missing or stale (``bench.report.paper.artifacts``). Returns the files written."""
     records = _finished_records(dirs)
     groups = {}
     for r in records:
@@ -257,7 +257,7 @@ def build_tables(dirs, out: Path, figures: bool = True, profile_points: int = 21
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.tables", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.report.paper", description=__doc__.splitlines()[0])
     parser.add_argument("dirs", nargs="+", type=Path, help="sweep or job folders")
     parser.add_argument("--out", type=Path, required=True, help="folder for the tables")
     parser.add_argument("--no-figures", action="store_true", help="tables only")
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--recompute", action="store_true", help="re-run the VIO even if stored artifacts match")
     args = parser.parse_args(argv)
     if args.profile_points < 2:
-        print("bench.tables: error: --profile-points must be at least 2", file=sys.stderr)
+        print("bench.report.paper: error: --profile-points must be at least 2", file=sys.stderr)
         return 2
     def say(msg):
         return print(msg, file=sys.stderr, flush=True)
@@ -274,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
                                  recompute=args.recompute, log=say):
             print(path)
     except (BenchError, AvioError) as err:  # TablesError, RecordError, ...; anything else is a bug
-        print(f"bench.tables: error: {err}", file=sys.stderr)
+        print(f"bench.report.paper: error: {err}", file=sys.stderr)
         return 2
     return 0
 

@@ -2,16 +2,10 @@
 the closed-form error transition against finite differences."""
 
 import numpy as np
+from imu_reference import make_substeps, matrix_to_quat, propagate_interval, propagate_preintegrated
 from test_filter import make_circle_sequence
 
-from avio.filter.propagation import (
-    make_substeps,
-    matrix_to_quat,
-    preintegrate,
-    propagate_interval,
-    propagate_preintegrated,
-    quat_to_matrix,
-)
+from avio.filter.propagation import preintegrate, quat_to_matrix
 from avio.geometry import so3_exp, so3_log
 
 

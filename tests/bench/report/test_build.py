@@ -135,7 +135,7 @@ def test_a_problem_where_every_run_failed_still_reports(tmp_path):
 
 
 def fake_tables_module(fail: bool) -> types.ModuleType:
-    """A stand-in for bench/tables.py honouring the hook's contract (build_tables, TablesError)."""
+    """A stand-in for bench/report/paper/tables.py honouring the hook's contract (build_tables, TablesError)."""
     module = types.ModuleType("bench.report.paper.tables")
     module.__spec__ = importlib.machinery.ModuleSpec("bench.report.paper.tables", None)
 

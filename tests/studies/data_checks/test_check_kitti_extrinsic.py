@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DATA = Path(os.environ.get("AVIO_DATA", REPO.parent / "shared" / "data"))
 pytestmark = pytest.mark.skipif(not (DATA / "kitti00" / "VO_stereo_factors00.txt").exists(),
                                 reason=f"KITTI 00 tracks not found under {DATA} (set AVIO_DATA)")
