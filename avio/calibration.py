@@ -12,7 +12,7 @@ mislead near gimbal lock, docs/model.md, "Conventions"), the lever-arm error
 same pixels under the two calibrations. A rotation of the camera about its x or y axis by theta
 moves every ray almost exactly as a principal-point shift of f theta does, so a calibration can
 be 1 deg and 12 px off and still cast nearly the right rays: that combination is what a drive
-determines, not its two parts (docs/results/identifiability.md).
+determines, not its two parts (studies/identifiability/README.md).
 """
 
 from __future__ import annotations
