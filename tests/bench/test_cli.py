@@ -87,10 +87,10 @@ def _code_blocks(markdown: str, language: str) -> list[str]:
     return re.findall(rf"```{language}\n(.*?)```", markdown, flags=re.S)
 
 
-def test_readme_plugin_example_is_the_shipped_plugin():
-    readme = (ROOT / "README.md").read_text()
-    assert (ROOT / "optimizers" / "one_plus_one.py").read_text() in _code_blocks(readme, "python")
-    assert (ROOT / "bench" / "conf" / "optimizer" / "one_plus_one.yaml").read_text() in _code_blocks(readme, "yaml")
+def test_the_guides_plugin_example_is_the_shipped_plugin():
+    guide = (ROOT / "docs" / "guide" / "adding-an-optimiser.md").read_text()
+    assert (ROOT / "optimizers" / "one_plus_one.py").read_text() in _code_blocks(guide, "python")
+    assert (ROOT / "bench" / "conf" / "optimizer" / "one_plus_one.yaml").read_text() in _code_blocks(guide, "yaml")
 
 
 def _main_exit(argv, capsys):

@@ -1,5 +1,5 @@
 """problem=euroc: builds from its yaml, evaluates a batch with errors against Kalibr, names bad
-settings; and the README's "Adding a problem" shows exactly these files."""
+settings; and the guide "Adding a problem" (docs/guide/adding-a-problem.md) shows exactly these files."""
 
 from __future__ import annotations
 
@@ -81,9 +81,8 @@ def _code_blocks(text: str, language: str) -> list[str]:
     return [m.group(1) for m in re.finditer(rf"^```{language}\n(.*?)^```$", text, re.S | re.M)]
 
 
-def test_readme_adding_a_problem_shows_the_shipped_files():
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## Adding a problem", 1)[1].split("\n## ", 1)[0]
+def test_the_guide_adding_a_problem_shows_the_shipped_files():
+    section = (ROOT / "docs" / "guide" / "adding-a-problem.md").read_text()
     assert (ROOT / "bench" / "problems" / "euroc.py").read_text() in _code_blocks(section, "python")
     assert YAML.read_text() in _code_blocks(section, "yaml")
     assert Path(__file__).read_text() in _code_blocks(section, "python")
