@@ -53,7 +53,7 @@ def cpu_features() -> dict:
     extensions numpy dispatches its math to (``numpy``: the highest found, e.g. AVX512_ICL or
     AVX2), OpenBLAS's kernel set (``openblas``, e.g. SkylakeX or Haswell) and the CPU LLVM compiles
     the filter for (``llvm``, e.g. znver4). A drive simulated with AVX-512 differs in the last bits
-    from one simulated with AVX2 (README: "Bit-exact on one machine, not across vector extensions")."""
+    from one simulated with AVX2 (docs/guide/running.md: "Bit-exact on one machine, not across vector extensions")."""
     import numpy  # noqa: F401  (loads numpy's OpenBLAS, whose kernel set threadpoolctl reads)
     from llvmlite import binding
     from threadpoolctl import threadpool_info

@@ -1,4 +1,4 @@
-"""A (1+1) evolution strategy with the 1/5th success rule: the README's "add an optimiser" example."""
+"""A (1+1) evolution strategy with the 1/5th success rule: the example of docs/guide/adding-an-optimiser.md."""
 
 from __future__ import annotations
 

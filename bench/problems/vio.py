@@ -6,7 +6,7 @@ A data source is one small module beside this one (``synthetic.py``, ``kitti00.p
 (its defaults are the yaml's defaults; it validates itself in one place), whose
 :meth:`VioParams.check_data` makes the cheap data checks the preflight runs before any work and
 whose :meth:`VioParams.build` returns the :class:`Drives`; and a two-line :class:`VioProblem`
-subclass registered under the yaml's name. See the README's "Adding a problem".
+subclass registered under the yaml's name. See docs/guide/adding-a-problem.md.
 
 Objectives (``objective=``), both batched and both pooled over the calibration drives:
 
