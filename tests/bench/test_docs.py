@@ -75,3 +75,21 @@ def test_the_guides_show_the_shipped_files():
     proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "sync_doc_examples.py"), "--check"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, f"run python scripts/sync_doc_examples.py: {proc.stderr}"
+
+
+def test_the_settings_reference_is_generated_from_the_shipped_yaml_files():
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_reference.py"), "--check"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, f"run python scripts/make_reference.py: {proc.stderr}"
+
+
+def test_every_setting_a_vio_problem_reads_is_in_the_reference():
+    import dataclasses
+
+    page = (DOCS / "reference" / "problems.md").read_text()
+    missing = {}
+    for name in problems.available():
+        params = getattr(problems.get(name), "Params", None)
+        if params is not None:
+            missing[name] = [f.name for f in dataclasses.fields(params) if f"| `{f.name}` |" not in page]
+    assert {k: v for k, v in missing.items() if v} == {}
