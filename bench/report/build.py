@@ -19,9 +19,15 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
   re-run the VIO unless ``--recompute`` is given;
 - ``report.html`` — the whole report as one self-contained page (``bench.report.html``):
   every figure embedded, sortable tables, the provenance of the records;
-- ``report.md`` — the same as a Markdown document linking the files.
+- ``report.md`` — the same as a Markdown document linking the files;
+- ``evaluations.parquet`` — every evaluation of every job, one row each (job identity, batch,
+  evaluation index, f, the variables by name, the log's times, the metrics), see
+  ``bench.report.evaluations``; ``pandas.read_parquet`` reads it in one call;
+- ``iohprofiler/`` — the runs in the IOHprofiler format that IOHanalyzer loads (one function per
+  problem setting, one algorithm per optimiser, one run per job), written by ``ioh``'s logger,
+  see ``bench.report.iohprofiler``.
 
-Same records, same options → byte-identical CSV, Markdown, HTML and PNG files: nothing written
+Same records, same options → byte-identical CSV, Markdown, HTML, PNG, Parquet and IOHprofiler files: nothing written
 depends on the time, the machine or where the folders are (job folders are named relative to
 the DIR they were found in; the provenance shown is the records'). Progress goes to stderr,
 the path of report.md to stdout. Bad input (a missing DIR, no records, a corrupt record or
@@ -160,6 +166,12 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
                         ("versus_leader", vs), ("ranks", avg), ("targets", targets_table(targets)),
                         ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
         _write_csv(frame, out / f"{name}.csv")
+    log("report: evaluations.parquet and the IOHprofiler export")
+    from bench.report.evaluations import write_evaluations
+    from bench.report.iohprofiler import write_iohprofiler
+
+    write_evaluations(records, runs, out / "evaluations.parquet")
+    write_iohprofiler(runs, out / "iohprofiler")
     log("report: drawing the anytime and ECDF figures")
     figures, used = {}, set()
     for problem in sorted(runs["problem"].unique()):
@@ -207,7 +219,9 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
         "",
         "Files: [leaderboard.csv](leaderboard.csv) · [runs.csv](runs.csv) · [pairwise.csv](pairwise.csv) · "
         "[versus_leader.csv](versus_leader.csv) · [ranks.csv](ranks.csv) · [targets.csv](targets.csv) · "
-        "[ert.csv](ert.csv) · [ecdf.csv](ecdf.csv) · [curves.csv](curves.csv)",
+        "[ert.csv](ert.csv) · [ecdf.csv](ecdf.csv) · [curves.csv](curves.csv) · "
+        "[evaluations.parquet](evaluations.parquet) (every evaluation) · "
+        "[iohprofiler/](iohprofiler/) (for IOHanalyzer)",
         "",
         "## Average rank over problems",
         "",
