@@ -93,6 +93,11 @@ def main(argv: list[str] | None = None) -> None:
     if any(a in ("--help", "-h") for a in argv):
         print(help_text())
         return
+    if "--version" in argv:  # ours, before Hydra's (which would print Hydra's version)
+        from bench import version
+
+        print(f"avio-bench {version()}")
+        return
     code, plan = preflight_plan(argv)
     if code:
         raise SystemExit(code)

@@ -64,9 +64,10 @@ from avio.calibration import Calibration, CalibrationPerturbation
 from avio.datasets._io import DatasetError, check_increasing, read_numeric_table, with_content_hash
 from avio.datasets.eqvio import meta_float, read_eqvio_csv
 from avio.datasets.kalibr import read_camchain, read_imu_noise
+from avio.datasets.paths import data_root
 from avio.sequence import GroundTruth, ImuNoise, ImuSamples, Sequence, TripletTracks
 
-DEFAULT_DATA_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "euroc_v1_01"
+DEFAULT_DATA_DIR = data_root() / "euroc_v1_01"  # at import: avio/datasets/paths.py
 FEATURES_FILE = "eqvio_processed_30s.csv"
 GT_FILE = "V1_01_easy_groundtruth.csv"
 CAMCHAIN_FILE = "kalibr_imucam_chain.yaml"

@@ -43,12 +43,14 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from avio.calibration import CalibrationPerturbation
 from avio.datasets._io import DatasetError, check_increasing, read_numeric_table, with_content_hash
+from avio.datasets.paths import data_root
 from avio.reference import IMAGE_SIZE_PX, T_cam_imu_2011_10_03, kitti_2011_10_03_calibration
 from avio.sequence import GroundTruth, ImuNoise, ImuSamples, Sequence, TripletTracks
 from avio.sim.camera import simulate_camera_tracks
 from avio.tracks import triplets_from_observations
 
-DEFAULT_DATA_DIR = Path(__file__).resolve().parents[3] / "shared" / "data"
+#: The data folder at import (avio/datasets/paths.py: $AVIO_DATA, the checkout's ../shared/data or a user folder).
+DEFAULT_DATA_DIR = data_root()
 TIME_OFFSET_S = 46535.00
 WINDOWS = {"paper_540m": (15, 796), "paper_928m": (2404, 3553), "clean_928m": (3000, 4077)}
 #: Ground-truth/IMU consistency (see :func:`check_ground_truth_rate`): the yaw rate of the ground

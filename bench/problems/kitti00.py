@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from avio.calibration import Calibration
 from avio.errors import AvioError
 from bench.problems.base import ProblemError, register
-from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir
+from bench.problems.vio import Drives, VioParams, VioProblem, default_data_dir, require_data
 
 HOLDOUT_SEED = 1000
 
@@ -43,10 +43,11 @@ def _frames(window, what: str) -> tuple[int, int]:
 
 
 def _read(data_dir: str | None):
-    from avio.datasets.kitti00 import read_kitti00
+    from avio.datasets.kitti00 import GT_FILE, IMU_FILE, TIMES_FILE, read_kitti00
 
+    folder = require_data(data_dir, "kitti00", (GT_FILE, TIMES_FILE, IMU_FILE), "KITTI 00")
     try:
-        return read_kitti00(default_data_dir(data_dir) / "kitti00")  # parses and validates every file (memoised)
+        return read_kitti00(folder)  # parses and validates every file (memoised)
     except (AvioError, OSError) as err:  # KittiDataError, or another avio error of its data
         raise ProblemError(str(err)) from None
 
@@ -85,7 +86,8 @@ def _check_windows(data_dir, windows: dict) -> None:
 
 @dataclass(frozen=True)
 class Kitti00Params(VioParams):
-    """data_dir: null = $AVIO_DATA or ../shared/data; drives: calibration windows (names of
+    """data_dir: null = $AVIO_DATA, else ../shared/data in a checkout, else the user data folder (the
+    folder holding kitti00/; ``python -m bench.data``); drives: calibration windows (names of
     avio.datasets.kitti00.WINDOWS or [first, last]); holdout: the held-out window or None; data_seed: the
     simulated camera's noise and outliers (>= 0); pixel_noise_px, outlier_fraction, max_features:
     the simulated camera; truth_perturbation: truth = rectified KITTI + this
@@ -185,10 +187,10 @@ class Kitti00TracksParams(VioParams):
     def check_data(self) -> None:
         from avio.datasets.kitti00 import TRACKS_FILE
 
+        tracks = require_data(self.data_dir, "kitti00", (TRACKS_FILE,), "KITTI 00 real tracks") / TRACKS_FILE
         _check_windows(self.data_dir, {"window": self.window})
-        tracks = default_data_dir(self.data_dir) / "kitti00" / TRACKS_FILE
-        if not tracks.is_file() or tracks.stat().st_size == 0:
-            raise ProblemError(f"{tracks}: the real feature tracks file is missing or empty")
+        if tracks.stat().st_size == 0:
+            raise ProblemError(f"{tracks}: the real feature tracks file is empty")
 
     def build(self) -> Drives:
         seq = _load(self.data_dir, self.window, "window", camera="real_tracks", seed=self.data_seed,

@@ -57,7 +57,8 @@ class KittiRawParams(VioParams):
 
         drive = Path(self.path)
         if not (drive / "oxts" / "data").is_dir():
-            raise ProblemError(f"{drive}: not a KITTI raw drive folder (no oxts/data)")
+            raise ProblemError(f"{drive}: not a KITTI raw drive folder (no oxts/data); point problem.params.path at "
+                               "a synced drive, .../<date>/<date>_drive_<nnnn>_sync (`python -m bench.data kitti_raw`)")
         try:
             packets = read_oxts_packets(drive / "oxts" / "data")
             stamps = read_timestamps(drive / "oxts" / "timestamps.txt")[0]

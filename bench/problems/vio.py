@@ -26,11 +26,9 @@ reference such as Kalibr) when the source knows one (avio.calibration).
 
 from __future__ import annotations
 
-import os
 import types
 import typing
 from dataclasses import asdict, dataclass, fields
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -42,18 +40,10 @@ from avio.filter.prepare import prepare
 from avio.metrics import drift_metrics, pose_errors
 from avio.objectives import OBJECTIVES, innovation_nll, pooled_position_rmse, scored_frames
 from avio.sequence import Sequence
+from bench.problems._data_dir import DATA_HINT, checked_data, default_data_dir, require_data, with_data_hint
 from bench.problems.base import ProblemError
 from bench.problems.calibration_space import make_calibration_space
 from bench.space import SpaceError
-
-REPO_ROOT = Path(__file__).resolve().parents[2]
-
-
-def default_data_dir(data_dir: str | None = None) -> Path:
-    """``data_dir``, else ``$AVIO_DATA``, else ``../shared/data`` beside the repository."""
-    if data_dir:
-        return Path(data_dir).expanduser()
-    return Path(os.environ.get("AVIO_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 
 def _tuples(d: dict | None) -> dict:
@@ -169,7 +159,10 @@ class VioParams:
                 raise ProblemError(f"{key} = {value!r}: must be {_hint_text(hints[key])}")
             values[key] = value
         obj = cls(**values)
-        obj.validate()
+        try:
+            obj.validate()
+        except ProblemError as err:  # a source's nominal may read its data (euroc: the Kalibr file)
+            raise with_data_hint(obj, err) from None
         return obj
 
     def validate(self) -> None:
@@ -238,14 +231,13 @@ class VioProblem:
     name = "vio"
 
     def __init__(self, **params) -> None:
-        self.params = self.Params.from_config(params)
-        self.params.check_data()
+        self.params = checked_data(self.Params.from_config(params))
         drives = self.params.build()
         self._setup(drives)
 
     @classmethod
     def preflight(cls, **params) -> None:
-        cls.Params.from_config(params).check_data()
+        checked_data(cls.Params.from_config(params))
 
     def _setup(self, drives: Drives) -> None:
         p = self.params
@@ -371,5 +363,5 @@ def _same_calibration(a: Calibration, b: Calibration) -> bool:
     return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in Calibration.__dataclass_fields__)
 
 
-__all__ = ["Drives", "VioParams", "VioProblem", "default_data_dir",
-           "filter_config"]
+__all__ = ["DATA_HINT", "Drives", "VioParams", "VioProblem", "default_data_dir",
+           "filter_config", "require_data"]

@@ -4,6 +4,8 @@ and clear errors on broken copies of them."""
 from __future__ import annotations
 
 import shutil
+import sys
+from importlib import import_module
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +25,6 @@ from avio.datasets.euroc import (
 from avio.datasets.kalibr import read_camchain, read_imu_noise, read_kalibr_yaml
 from avio.geometry import geodesic_angle_deg, so3_log
 from avio.sequence import ImuSamples
-from tests.avio.filter.filter_model import relative_poses, triplet_residuals
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,17 @@ def _mean_gyro(imu: ImuSamples, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
     return (at(t1) - at(t0)) / (t1 - t0)[:, None]
 
 
+def _filter_model():
+    """tests/avio/filter/filter_model.py: test folders are no packages (pytest's prepend import mode),
+    and a ``tests`` package of another distribution in site-packages would shadow ``tests.avio``."""
+    folder = str(Path(__file__).resolve().parents[1] / "filter")
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    return import_module("filter_model")
+
+
 def _triplet_residuals_under_truth(seq, cal: Calibration) -> np.ndarray:
+    relative_poses, triplet_residuals = _filter_model().relative_poses, _filter_model().triplet_residuals
     """(m, 4) pixel residuals of every valid triplet feature under the ground-truth poses."""
     R_world_cam = seq.truth.R_world_imu @ cal.R_cam_imu[0].T
     p_world_cam = seq.truth.p_world_imu_m + seq.truth.R_world_imu @ cal.p_imu_cam_m[0]
