@@ -24,7 +24,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from bench.run import callbacks
+from bench.run import callbacks, hydra_guard
 from bench.run.job import exit_with_the_sweep, plain, run_configured_job
 from bench.run.preflight import CONF_DIR, preflight_plan
 
@@ -105,6 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""
     callbacks.LAST_SWEEP.clear()
+    hydra_guard.install()  # Hydra's own set-up of a job failing fails that job, not the sweep
     saved = sys.argv
     sys.argv = [saved[0] if saved else "avio-bench", *argv]  # Hydra parses sys.argv
     try:

@@ -14,11 +14,23 @@ A job folder holds
 - ``.lock``: the lock file one process holds (``fcntl.flock``) for the job's whole lifetime;
   it names the holder (pid, host, start time).
 
+Every line of ``evals.jsonl`` also carries ``"job_key"``, the key of the job that wrote it (the
+``job_key`` of ``job.json`` and ``record.json``): a log copied from another job folder is refused on
+resume and on skip (``bench.run.loop``), naming both files. Lines written before the key existed
+(harness 0.2 and older) carry none: they are still resumed or skipped when ``job.json`` is this job's,
+as they always were (refusing them would throw away every unfinished job of an upgraded sweep), but
+only as the log's leading lines: a keyless line after a keyed one is refused.
+
+No file of a job folder is ever written through a symbolic link (one could point outside the sweep,
+into another job or a file of the user's): the log is opened with ``O_NOFOLLOW``, the lock file too,
+and ``write_json_atomic`` refuses to replace a link (``RecordError`` naming it).
+
 Records, logs and caches are data: they are parsed as JSON, never imported, unpickled or instantiated.
 """
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
@@ -59,10 +71,21 @@ def _jsonable(value):
     return value
 
 
+def refuse_symlink(path: Path) -> None:
+    """RecordError when ``path`` is a symbolic link (the harness never writes or trusts a file through one)."""
+    path = Path(path)
+    if path.is_symlink():
+        raise RecordError(f"{path} is a symbolic link (to {os.readlink(path)}); a job's files are never written or "
+                          "read through one (it could lead outside the sweep): replace it by the file itself")
+
+
 def write_json_atomic(path: Path, payload: dict) -> None:
-    """Write ``payload`` as JSON to ``path`` so that readers see the old or the new file, never half."""
+    """Write ``payload`` as JSON to ``path`` so that readers see the old or the new file, never half.
+
+    RecordError when ``path`` is a symbolic link: the rename would replace the link, silently."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    refuse_symlink(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         os.fchmod(fd, FILE_MODE)
@@ -92,6 +115,18 @@ def _dumps_line(entry: dict) -> bytes:
     return (json.dumps(_jsonable(entry), sort_keys=True) + "\n").encode()
 
 
+def open_no_follow(path: Path, flags: int, mode: str | None = None):
+    """``os.open(path, flags | O_NOFOLLOW, FILE_MODE)`` (a file object when ``mode`` is given); RecordError
+    naming the link when ``path`` is a symbolic link."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW, FILE_MODE)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            refuse_symlink(path)
+        raise
+    return fd if mode is None else os.fdopen(fd, mode)
+
+
 class EvalLog:
     """Append-only evaluation log of one job (``evals.jsonl``)."""
 
@@ -102,7 +137,7 @@ class EvalLog:
 
     def append(self, entry: dict) -> None:
         if self._fh is None:
-            self._fh = open(self.path, "ab")
+            self._fh = open_no_follow(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, "ab")
         # flushed to the kernel, which survives a killed process; an fsync per batch would cost
         # more than the harness's whole overhead budget on a cheap objective
         self._fh.write(_dumps_line(entry))
@@ -117,6 +152,7 @@ class EvalLog:
         """Cut the file to its first ``size`` bytes: drops a torn last line after a kill, nothing else
         (the complete lines before it are not rewritten)."""
         self.close()
+        refuse_symlink(self.path)
         os.truncate(self.path, size)
 
 
@@ -221,7 +257,10 @@ class FolderLock:
 
     def acquire(self) -> "FolderLock":
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, FILE_MODE)
+        try:
+            fd = open_no_follow(self.path, os.O_RDWR | os.O_CREAT)
+        except RecordError as err:
+            raise OSError(errno.ELOOP, str(err)) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

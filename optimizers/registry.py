@@ -21,7 +21,13 @@ class Registry:
         self._classes: dict[str, type] = {}
 
     def register(self, name: str):
-        """Class decorator that registers ``cls`` under ``name`` (the ``name`` in its yaml)."""
+        """Class decorator that registers ``cls`` under ``name`` (the ``name`` in its yaml).
+
+        The name becomes a folder of every job's path (``<sweep>/<problem>/<optimizer>/seed<k>``), so
+        it must be one plain path component: ValueError for an empty name, or one with ``/``, ``\\``,
+        ``..``, a NUL byte or a leading ``.`` (which could put a job folder outside the sweep, or hide it).
+        """
+        check_name(self.kind, name)
 
         def decorate(cls: type) -> type:
             if name in self._classes and self._classes[name] is not cls:
@@ -50,6 +56,18 @@ class Registry:
             return self._classes[name]
         except KeyError:
             raise KeyError(f"unknown {self.kind} {name!r}; valid names: {', '.join(sorted(self._classes))}") from None
+
+
+def check_name(kind: str, name) -> None:
+    """ValueError unless ``name`` is a non-empty string usable as one folder name (see ``Registry.register``)."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{kind} name {name!r}: must be a non-empty string (it names the job folders)")
+    bad = [why for why, hit in (("a '/'", "/" in name), ("a '\\'", "\\" in name), ("'..'", ".." in name),
+                                ("a NUL byte", "\0" in name), ("a leading '.'", name.startswith(".")))
+           if hit]
+    if bad:
+        raise ValueError(f"{kind} name {name!r} holds {' and '.join(bad)}: it names a job folder "
+                         "(<sweep>/<problem>/<optimizer>/seed<k>), so it must be one plain folder name")
 
 
 OPTIMIZERS = Registry("optimizer", "optimizers", skip=frozenset({"base", "registry"}))

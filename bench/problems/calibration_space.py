@@ -131,6 +131,18 @@ def paper_parameters(calibration: Calibration, nominal: Calibration) -> np.ndarr
 LOCAL_FOCAL_FRACTION, LOCAL_PRINCIPAL_FRACTION = 0.03, 0.02
 
 
+def _check_bounds_are_free(bounds: dict | None, fixed: tuple[str, ...], tie_focal: bool) -> None:
+    """SpaceError naming the variable when bounds are given for one that is not a variable (fixed, or fy
+    tied to fx): they would be dropped silently, and the user meant something else."""
+    for name in bounds or {}:
+        if name in fixed:
+            raise SpaceError(f"bounds.{name} given, but {name} is fixed (frozen at the nominal, so it has no bounds): "
+                             f"drop bounds.{name} or take {name} out of fixed")
+        if tie_focal and name == "fy":
+            raise SpaceError("bounds.fy given, but tie_focal makes fy equal fx (fy is not a variable): "
+                             "bound fx instead, or set tie_focal: false")
+
+
 def make_calibration_space(
     kind: str,
     nominal: Calibration,
@@ -150,8 +162,9 @@ def make_calibration_space(
     intrinsics ``+- LOCAL_FOCAL_FRACTION`` of the focal length and ``+- LOCAL_PRINCIPAL_FRACTION``
     of the larger side of ``image_size_px`` (required), ``+-rotation_bound_deg`` and
     ``+-translation_bound_m`` for the extrinsic offsets. ``fixed`` variables are frozen at the
-    nominal's values; ``tie_focal`` makes fy equal fx (fy is then not a variable).
-    SpaceError names the variable for anything invalid (unknown names, a focal bound <= 0, ...).
+    nominal's values; ``tie_focal`` makes fy equal fx (fy is then not a variable); bounds for a fixed
+    or tied variable are refused. SpaceError names the variable for anything invalid (unknown names,
+    a focal bound <= 0, ...).
     """
     if kind not in SPACES:
         raise SpaceError(f"unknown space {kind!r}; valid: {', '.join(SPACES)}")
@@ -194,6 +207,7 @@ def make_calibration_space(
             raise SpaceError(f"fixed: unknown variable {name!r}; variables: {', '.join(names)}")
     if tie_focal and ("fx" in fixed) != ("fy" in fixed):
         raise SpaceError("tie_focal with only one of fx, fy fixed: fix both or neither")
+    _check_bounds_are_free(bounds, fixed, tie_focal)
     provisional = CalibrationSpace(kind, Space(tuple(names), tuple(units), np.zeros(len(names)),
                                               np.ones(len(names)), np.zeros(len(names))), nominal)
     reference = provisional.encode(nominal)[0]

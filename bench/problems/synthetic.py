@@ -9,6 +9,9 @@ than another camera. ``noise_realisations`` K > 1 adds, for each calibration dri
 realisations of it: the same world and trajectory with independent IMU noise and biases, pixel
 noise, outliers and feature selection (simulator noise seed ``(data_seed, i, 2000, r)``), so
 that averaging the noise alone can be told from averaging the drives' geometry too.
+
+A calibration drive can be the held-out drive only by sharing its preset and seed: with 1001 drives
+or more, drive 1000 would be simulated with the held-out seed; that is refused.
 """
 
 from __future__ import annotations
@@ -65,6 +68,11 @@ class SyntheticParams(VioParams):
             raise ProblemError(f"noise_realisations = {self.noise_realisations}: must be >= 1")
         if not self.drives:
             raise ProblemError("drives: at least one calibration drive")
+        if self.holdout and len(self.drives) > HOLDOUT_SEED and self.drives[HOLDOUT_SEED] == self.holdout:
+            # every other drive has a seed of its own, so only this one can be the held-out drive itself
+            raise ProblemError(f"drives[{HOLDOUT_SEED}] = {self.holdout!r} is the held-out drive itself (the same "
+                               f"preset and simulator seed ({self.data_seed}, {HOLDOUT_SEED})): the held-out score "
+                               "must come from a drive the optimiser never sees; use fewer drives or set holdout: null")
         for name in self.drives + ((self.holdout,) if self.holdout else ()):
             _sim_config(name, self.sim)
         super().validate()

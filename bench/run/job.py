@@ -21,10 +21,12 @@ from omegaconf import DictConfig, OmegaConf
 import optimizers
 from bench.errors import BenchError
 from bench.problems.base import build_problem
+from bench.run import hydra_guard
 from bench.run.identity import job_key
 from bench.run.loop import Budget, JobFolderError, RunError, record_failure, run_job
 
 log = logging.getLogger(__name__)
+hydra_guard.install()  # here too for a launcher's worker, which imports this module to unpickle its job
 
 # settings that change how a job is shown, not what it computes: left out of its identity
 PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra")

@@ -12,6 +12,13 @@ Trust rules (issue 14):
   hash of the source files that decide asks and values). A job folder is only resumed or
   skipped by the same identity; anything else is refused (``RunError``) with nothing on disk
   changed.
+- **A log is this job's.** Every log line carries the job's ``job_key`` (``bench.records``). On resume
+  and on skip a line with another key (a log copied from another job folder) is refused, and so is a
+  finished record whose log is missing, empty or not the length it records (``n_batches``, ``n_evals``):
+  a record without its log cannot be checked or reported. Both messages name both files. Keyless lines
+  (logs of harness 0.2 and older) are trusted on ``job.json`` alone, as before, as the log's leading lines only.
+- **No symbolic links.** ``evals.jsonl``, ``record.json`` or ``job.json`` that is a symbolic link is refused
+  before anything is read or written through it (it could lead outside the sweep).
 - **One writer.** The job holds ``FolderLock`` on its folder for its whole life; a second process
   fails fast with a message naming the holder.
 - **Replay checked, then trusted.** A killed job is resumed by rebuilding the optimiser from its
@@ -56,6 +63,7 @@ from bench.records import (
 )
 from bench.run.bookkeeping import account, batch_entry, job_record, outcome, problem_fields
 from bench.run.identity import config_hash, header_mismatch, job_header
+from bench.run.log_checks import finished_log_problem, foreign_line, linked_file
 from bench.run.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -136,13 +144,20 @@ def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | No
         why = (header_mismatch(on_disk, header) if on_disk is not None else None) or (
             f"job_key {previous.get('job_key')} != {header['job_key']}")
         raise RunError(f"{job_dir} already holds a different job, finished ({why}); choose another hydra.sweep.dir")
+    _refuse(finished_log_problem(job_dir, previous, header))
     return previous, None
+
+
+def _refuse(why: str | None) -> None:
+    if why:
+        raise RunError(why)
 
 
 def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label, progress_every_s,
                 optimizer_class, progress) -> dict:
     """``run_job`` once the folder is locked: skip a finished job, check the folder, run, write the record."""
     header = job_header(identity, problem, optimizer_class)
+    _refuse(linked_file(job_dir))
     try:
         previous, corrupt_note = _previous_record(job_dir, header)
     except OSError as err:
@@ -163,6 +178,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
         _set_aside_corrupt_record(job_dir, corrupt_note)
         optimizer = make_optimizer()
         entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
+        _refuse(foreign_line(entries, job_dir, header))  # RunError: nothing changed
         if entries:
             print(f"{label}: resuming: replaying {len(entries)} logged batches through the optimiser",
                   file=sys.stderr, flush=True)
@@ -179,7 +195,8 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
             log.info("%s: resumed after %d logged batches (%d evals)", label, len(entries), state["n_evals"])
         bar = Progress(label, budget, max(0.5, min(float(progress_every_s), 5.0)), progress, state["n_evals"])
         clock0 = time.perf_counter() - state["offset_s"]  # after the set-up: wall_s times the loop
-        stop_reason = _run_batches(problem, optimizer, budget, state, evals_log, bar, clock0, stop_reason)
+        stop_reason = _run_batches(problem, optimizer, budget, state, evals_log, bar, clock0, stop_reason,
+                                   header["job_key"])
     except RunError as exc:
         if evals_log is None:  # refused before anything was written
             raise
@@ -232,8 +249,9 @@ def _set_aside_corrupt_record(job_dir: Path, corrupt_note: str | None) -> None:
 
 
 def _run_batches(problem, optimizer, budget: Budget, state: dict, evals_log: EvalLog, bar: Progress,
-                 clock0: float, stop_reason: str | None) -> str:
-    """Ask, evaluate, log and tell batches until a budget or the optimiser stops; the stop reason."""
+                 clock0: float, stop_reason: str | None, job_key: str) -> str:
+    """Ask, evaluate, log (each line keyed by ``job_key``) and tell batches until a budget or the
+    optimiser stops; the stop reason."""
     while stop_reason is None:
         stop_reason = _budget_stop(budget, state, time.perf_counter() - clock0) or _optimizer_stop(optimizer)
         if stop_reason is not None:
@@ -249,6 +267,7 @@ def _run_batches(problem, optimizer, budget: Budget, state: dict, evals_log: Eva
         if f.shape != (len(X),):
             raise RunError(f"problem {problem.name!r} returned f of shape {f.shape} for {len(X)} points")
         entry = batch_entry(state, X, f, metrics, t_start, t_end)
+        entry["job_key"] = job_key
         evals_log.append(entry)
         account(state, entry)
         if trimmed:

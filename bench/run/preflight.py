@@ -8,8 +8,8 @@ progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``
 space, its data files), the problem itself (built once per distinct problem config, as the
 first job would build it: a serial sweep's jobs then reuse it), the optimiser built on the job's
 space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job
-folder that already exists (it must hold this very job — same resolved config — and not be in use by another
-process).
+folder that already exists (it must hold this very job — same resolved config —, not be in use by another
+process, and hold no symbolic link in place of its files).
 The first problem found is one clear message and exit code 2; nothing has been written.
 """
 
@@ -34,7 +34,17 @@ import optimizers
 from avio.errors import AvioError
 from bench import problems
 from bench.errors import BenchError
-from bench.records import EVAL_LOG, RecordError, lock_holder, read_job_file, read_record
+from bench.records import (
+    EVAL_LOG,
+    JOB_FILE,
+    LOCK_FILE,
+    RECORD,
+    RecordError,
+    lock_holder,
+    read_job_file,
+    read_record,
+    refuse_symlink,
+)
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
 from bench.space import Space
@@ -192,6 +202,11 @@ def check_job_dir(job_dir: Path, cfg: dict) -> None:
         return
     if not job_dir.is_dir():
         raise ConfigError(f"job folder {job_dir} is a file, not a folder")
+    for name in (EVAL_LOG, RECORD, JOB_FILE, LOCK_FILE):
+        try:
+            refuse_symlink(job_dir / name)
+        except RecordError as err:
+            raise ConfigError(str(err)) from None
     holder = lock_holder(job_dir)
     if holder:
         raise ConfigError(f"job folder {job_dir} is in use by {holder}; wait for it to end or choose another "

@@ -64,7 +64,7 @@ def test_options_of_every_vio_problem_apply(data_dir):
 
 @pytest.mark.data
 @pytest.mark.parametrize("change, message", [
-    ({"holdout": [20.0, 35.0]}, "holdout: .*outside the data"),
+    ({"holdout": [30.0, 35.0]}, "holdout: .*outside the data"),
     ({"drives": [[10.0, 5.0]]}, r"drives\[0\] = \[10.0, 5.0\]: need finite t_first_s < t_last_s"),
     ({"gyro_bias_init": "standstill"}, r"drives\[0\]: .*start at rest"),  # 20-30 s is in flight
     ({"nominal_perturbation": {"d_focal_px": 1.0}}, "nominal_perturbation"),

@@ -1,0 +1,60 @@
+"""Is a job folder's log this job's, whole? The checks ``bench.run.loop`` makes before it resumes or
+skips a job (its module docstring: "A log is this job's", "No symbolic links"). Each returns why
+not, naming the files, or None; the loop refuses the job with it and changes nothing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bench.records import EVAL_LOG, JOB_FILE, RECORD, RecordError, refuse_symlink, scan_eval_log
+
+
+def linked_file(job_dir: Path) -> str | None:
+    """Why not, when a job file is a symbolic link (nothing is read or written through one)."""
+    for name in (EVAL_LOG, RECORD, JOB_FILE):
+        try:
+            refuse_symlink(Path(job_dir) / name)
+        except RecordError as err:
+            return str(err)
+    return None
+
+
+def foreign_line(entries: list[dict], job_dir: Path, header: dict) -> str | None:
+    """Why not, when a log line was written by another job (its ``job_key``), or is keyless after a
+    keyed one (the logs of older harnesses are keyless from their first line)."""
+    keyed = False
+    for i, entry in enumerate(entries):
+        key = entry.get("job_key")
+        if key is None and not keyed:
+            continue  # a line of an older harness: trusted on job.json, as it always was
+        keyed = True
+        if key != header["job_key"]:
+            written_by = "a line without a job key after keyed ones" if key is None else f"job {key}"
+            log, job_file = Path(job_dir) / EVAL_LOG, Path(job_dir) / JOB_FILE
+            return (f"{log}: batch {i} was written by {written_by}, but {job_file} is job {header['job_key']}: "
+                    "the log was copied from another job folder (or mixed with one), so it is neither resumed nor "
+                    "skipped; move it away, or restore the job's own log")
+    return None
+
+
+def finished_log_problem(job_dir: Path, record: dict, header: dict) -> str | None:
+    """Why a finished record is not skipped: its log is unreadable, another job's, missing, empty or not
+    the length the record says (``n_batches``, ``n_evals``). Both files are named."""
+    record_path, evals_path = Path(job_dir) / RECORD, Path(job_dir) / EVAL_LOG
+    try:
+        entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
+    except RecordError as err:
+        return (f"{record_path} is finished, but its log is unreadable ({err}); it is not skipped: move both "
+                "files away to run the job again")
+    why = foreign_line(entries, job_dir, header)
+    if why:
+        return why
+    n_batches, n_evals = len(entries), sum(len(e["f"]) for e in entries)
+    if (n_batches, n_evals, file_bytes) == (record.get("n_batches"), record.get("n_evals"), complete_bytes):
+        return None
+    torn = " and a torn last line" if file_bytes > complete_bytes else ""
+    state = ("is missing" if not evals_path.exists() else "is empty" if not file_bytes else
+             f"holds {n_batches} batches ({n_evals} evals){torn}")
+    return (f"{record_path} records {record.get('n_batches')} batches ({record.get('n_evals')} evals), but "
+            f"{evals_path} {state}: a record without its whole log cannot be checked or reported, so it is not "
+            "skipped; restore the log, or move both files away to run the job again")
