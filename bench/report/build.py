@@ -270,16 +270,7 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
             f"![anytime curves for {problem}]({anytime.relative_to(out).as_posix()})",
             "",
         ]
-    lines += ["## Paper tables (Tables 1–3)", ""]
-    paths, note = tables
-    if note:
-        lines += [f"_{note}_", ""]
-    for path in paths:
-        rel = path.relative_to(out).as_posix()
-        lines += [f"- [{rel}]({rel})"]
-        if path.suffix == ".md":
-            lines += ["", path.read_text().rstrip(), ""]
-    lines += [""]
+    lines += _paper_tables_markdown(tables, out)
     failed = runs[~runs["valid"]][["job", "problem", "optimizer", "seed", "status", "error_type",
                                    "error_message"]]
     lines += ["## Failed runs", "",
@@ -288,6 +279,20 @@ def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairi
     lines += [_DEFINITIONS]
     return "\n".join(lines).rstrip() + "\n"
 
+
+
+def _paper_tables_markdown(tables: tuple[list[Path], str], out: Path) -> list[str]:
+    """The report's section listing the paper's tables, each Markdown table inline."""
+    lines = ["## Paper tables (Tables 1–3)", ""]
+    paths, note = tables
+    if note:
+        lines += [f"_{note}_", ""]
+    for path in paths:
+        rel = path.relative_to(out).as_posix()
+        lines += [f"- [{rel}]({rel})"]
+        if path.suffix == ".md":
+            lines += ["", path.read_text().rstrip(), ""]
+    return lines + [""]
 
 _DEFINITIONS = """## Definitions
 
