@@ -7,19 +7,21 @@ Examples::
     python -m bench problem=rastrigin budget.evals=500 hydra.sweep.dir=runs/mine   # resumable folder
 
 Exit codes: 0 every job ok; 1 some job failed (the last lines say which); 2 invalid input,
-nothing run or written.
+nothing run or written; 130 interrupted (Ctrl-C): the last line is the command that resumes the sweep.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import shlex
 import socket
 import sys
 import uuid
 from pathlib import Path
 
 import hydra
+from hydra._internal.utils import get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
@@ -44,6 +46,8 @@ def _job(cfg: DictConfig) -> float | None:
     num = OmegaConf.select(hc, "job.num", default=0) or 0  # missing in hydra.mode=RUN
     label = f"job {num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
     print(f"{label} -> {job_dir}", file=sys.stderr, flush=True)
+    if hc.mode != RunMode.MULTIRUN:  # for the resume hint after a Ctrl-C
+        callbacks.LAST_SWEEP["run_dir"] = job_dir
     outcome = run_configured_job(plain(cfg), job_dir, label=label)
     if hc.mode == RunMode.MULTIRUN:  # the sweep's callback counts outcomes
         callbacks.note_outcome(Path(hc.sweep.dir), num, label, outcome)
@@ -87,6 +91,25 @@ def help_text() -> str:
     ])
 
 
+def resume_hint(argv: list[str], program: str = "") -> str:
+    """The line printed after a Ctrl-C: the folder, and the command that resumes it.
+
+    The default sweep folder is named by the time it started, so the same command line would start a
+    new one: the hint adds ``hydra.sweep.dir=`` (``hydra.run.dir=`` in ``hydra.mode=RUN``) unless the
+    command line already fixes it.
+    """
+    single = "run_dir" in callbacks.LAST_SWEEP
+    folder = callbacks.LAST_SWEEP.get("run_dir" if single else "sweep_dir")
+    if folder is None:
+        return "Interrupted before the sweep started: nothing was run or written."
+    key = "hydra.run.dir" if single else "hydra.sweep.dir"
+    fixed = any(a.lstrip("+").startswith(f"{key}=") for a in argv)
+    typed = ["avio-bench"] if Path(program).name == "avio-bench" else ["python", "-m", "bench"]
+    command = [*typed, *argv, *([] if fixed else [f"{key}={folder}"])]
+    what = "job" if single else "sweep"
+    return f"Interrupted: the {what} in {folder} resumes with: {shlex.join(command)}"
+
+
 def main(argv: list[str] | None = None) -> None:
     """The console entry point (``avio-bench``); ``argv`` defaults to ``sys.argv[1:]``."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -98,18 +121,26 @@ def main(argv: list[str] | None = None) -> None:
 
         print(f"avio-bench {version()}")
         return
-    code, plan = preflight_plan(argv)
+    get_args_parser().parse_args(argv)  # a flag Hydra does not know: its usage on stderr, exit 2, before any work
+    callbacks.LAST_SWEEP.clear()
+    try:
+        code, plan = preflight_plan(argv)
+    except KeyboardInterrupt:
+        print(resume_hint(argv, sys.argv[0] if sys.argv else ""), file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
     if code:
         raise SystemExit(code)
     os.environ["BENCH_SWEEP_PID"] = str(os.getpid())  # launchers' local workers exit when it is gone
     os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""
-    callbacks.LAST_SWEEP.clear()
     hydra_guard.install()  # Hydra's own set-up of a job failing fails that job, not the sweep
     saved = sys.argv
     sys.argv = [saved[0] if saved else "avio-bench", *argv]  # Hydra parses sys.argv
     try:
         _job()
+    except KeyboardInterrupt:  # Ctrl-C: what was logged stays; one line says how to go on from it
+        print(resume_hint(argv, saved[0] if saved else ""), file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
     finally:
         sys.argv = saved
     if callbacks.LAST_SWEEP.get("n_failed"):

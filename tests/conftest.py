@@ -1,4 +1,4 @@
-"""Fixtures shared by the whole suite."""
+"""Fixtures shared by the whole suite, and one summary line for the tests skipped without the real data."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+# Every skip for missing real data says this (``no_data``): the terminal summary folds them into one line.
+NO_DATA = "real data absent"
 
 
 def shared_data_dir() -> Path:
@@ -16,13 +18,56 @@ def shared_data_dir() -> Path:
     return Path(os.environ.get("AVIO_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 
+def no_data(detail: str) -> str:
+    """The reason of a skip for missing real data: ``NO_DATA``, what is missing, and the way out."""
+    return f"{NO_DATA}: {detail} (set AVIO_DATA to use another folder)"
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """Path of the real data; skips the test (with the path tried) when it is absent."""
     path = shared_data_dir()
     if not path.is_dir():
-        pytest.skip(f"real data folder {path} is absent (set AVIO_DATA to use another)")
+        pytest.skip(no_data(f"no folder {path}"))
     return path
+
+
+@pytest.fixture(scope="session")
+def skip_no_data():
+    """``skip_no_data(detail)`` skips the test for missing real data, with the reason every such skip gives."""
+    def skip(detail: str):
+        pytest.skip(no_data(detail))
+
+    return skip
+
+
+def _skip_reason(report) -> str:
+    longrepr = getattr(report, "longrepr", None)
+    reason = longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else str(longrepr)
+    return reason.removeprefix("Skipped: ")
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_terminal_summary(terminalreporter):
+    """``-rs`` lists each skip; those for missing real data (a few dozen when ../shared/data is absent)
+    become one line per missing thing, with their count. Other skips are listed as usual, and the
+    final counts are unchanged."""
+    skipped = terminalreporter.stats.get("skipped", [])
+    no_data_skips = [r for r in skipped if NO_DATA in _skip_reason(r)]
+    if not no_data_skips or not terminalreporter.hasopt("s"):
+        return (yield)
+    terminalreporter.stats["skipped"] = [r for r in skipped if r not in no_data_skips]
+    try:
+        result = yield  # the short test summary (-ra) is written inside, without them
+    finally:
+        terminalreporter.stats["skipped"] = skipped
+    counts: dict[str, int] = {}
+    for report in no_data_skips:
+        reason = _skip_reason(report)
+        counts[reason] = counts.get(reason, 0) + 1
+    for reason, n in counts.items():
+        terminalreporter.write_line(f"SKIPPED {n} test{'s' if n != 1 else ''}: {reason}", yellow=True)
+    return result
 
 
 @pytest.fixture

@@ -4,7 +4,8 @@
 lock before Hydra writes anything there (a second sweep into the same folder fails fast, exit 2,
 naming the holder) and starts a fresh outcome list; each job, in whatever process a launcher
 runs it, appends one line to it (``note_outcome``); ``on_multirun_end`` builds the report and
-prints, as the sweep's last lines, how many jobs ended ok and which failed. ``LAST_SWEEP`` keeps
+prints, as the sweep's last lines, which jobs failed, how many ended ok, and where the records and
+the report are (``report.html`` last). ``LAST_SWEEP`` keeps
 the counts for ``bench.__main__``, which exits 1 when any job failed.
 """
 
@@ -65,11 +66,12 @@ class SweepReport(Callback):
             self._lock = FolderLock(sweep_dir, "sweep folder").acquire()
             (sweep_dir / OUTCOMES).write_text("")
         except LockError as err:
-            print(f"error: {err}")
+            print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
         except OSError as err:
-            print(f"error: hydra.sweep.dir={sweep_dir}: cannot write there ({err})")
+            print(f"error: hydra.sweep.dir={sweep_dir}: cannot write there ({err})", file=sys.stderr)
             raise SystemExit(2) from None
+        LAST_SWEEP["sweep_dir"] = sweep_dir  # named by bench.__main__ after a Ctrl-C
         n = os.environ.get("BENCH_SWEEP_JOBS")
         jobs = "jobs" if not n else f"{n} job" + ("" if n == "1" else "s")
         print(f"Sweep: {jobs} into {sweep_dir}", file=sys.stderr, flush=True)
@@ -77,7 +79,7 @@ class SweepReport(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir))
         try:
-            report_error = self._report(config, sweep_dir)
+            report_error, where = self._report(config, sweep_dir)
             outcomes = read_outcomes(sweep_dir)
         finally:
             if self._lock is not None:
@@ -97,14 +99,15 @@ class SweepReport(Callback):
             print(f"  report failed: {report_error}")
         print(f"Jobs: {expected} in all, {len(outcomes) - len(bad)} ok, {len(bad) + missing} failed"
               + (" (exit code 1)" if n_failed else ""))
+        for line in where:  # the sweep's last lines: where its results are, report.html last
+            print(line)
 
-    def _report(self, config: DictConfig, sweep_dir: Path) -> str | None:
+    def _report(self, config: DictConfig, sweep_dir: Path) -> tuple[str | None, list[str]]:
+        """(the report's error or None, the lines that say where the results are)."""
         if not config.get("report", True):
-            print(f"Records:     {sweep_dir}")
-            return None
+            return None, [f"Records:     {sweep_dir}"]
         if not any(sweep_dir.rglob("record.json")):
-            print(f"Records:     {sweep_dir} (none written: no report)")
-            return None
+            return None, [f"Records:     {sweep_dir} (none written: no report)"]
         from bench.report.build import build_report
 
         print("Report: building the leaderboard, statistics, tables and figures ...", file=sys.stderr, flush=True)
@@ -112,8 +115,9 @@ class SweepReport(Callback):
             out = build_report([sweep_dir], sweep_dir / "report")
         except Exception as err:
             log.exception("the report of %s failed", sweep_dir)
-            return f"{type(err).__name__}: {err}"
-        print(f"Records:     {sweep_dir}")
-        print(f"Leaderboard: {out.parent / 'leaderboard.csv' if out.is_file() else out / 'leaderboard.csv'}")
-        print(f"Report:      {out}")
-        return None
+            return f"{type(err).__name__}: {err}", [f"Records:     {sweep_dir}"]
+        folder = out.parent if out.is_file() else out
+        return None, [f"Records:     {sweep_dir}",
+                      f"Leaderboard: {folder / 'leaderboard.csv'}",
+                      f"Markdown:    {folder / 'report.md'}",
+                      f"Report:      {folder / 'report.html'}"]

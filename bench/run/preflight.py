@@ -15,6 +15,7 @@ The first problem found is one clear message and exit code 2; nothing has been w
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import sys
@@ -25,6 +26,7 @@ from pathlib import Path
 from hydra import compose, initialize_config_dir
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.global_hydra import GlobalHydra
+from hydra.core.object_type import ObjectType
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
@@ -79,6 +81,60 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     sweep_params = [f"{k}={v}" for k, v in params.items()]
     parsed = parser.parse_overrides(sweep_params + app_overrides)
     return BasicSweeper.split_arguments(parsed, None)[0]
+
+
+def _dotted(node, prefix: str = "") -> list[str]:
+    """Every key of a config as a dotted path (sections and leaves)."""
+    paths = []
+    if isinstance(node, dict):
+        for key, value in node.items():
+            path = f"{prefix}.{key}" if prefix else str(key)
+            paths += [path, *_dotted(value, path)]
+    return paths
+
+
+def _nearest_key(key: str, paths: list[str]) -> str | None:
+    """The valid key nearest to ``key``, comparing it with whole paths and with their last part
+    (``evals`` -> ``budget.evals``)."""
+    def score(path: str) -> float:
+        return max(difflib.SequenceMatcher(None, key, candidate).ratio()
+                   for candidate in (path, path.rsplit(".", 1)[-1]))
+    best = max(paths, key=score, default=None)
+    return best if best is not None and score(best) >= 0.4 else None
+
+
+def check_keys(argv: list[str]) -> None:
+    """Refuse an override of a top-level key the config does not have, before any work.
+
+    ``+objective=foo`` (what Hydra suggests after a typo such as ``objective=foo``) would add a key
+    that nothing reads and run the default sweep; this names the key and the nearest valid one.
+    Hydra's own keys (``hydra.*``, ``+hydra/...``), config groups (``+group=option``, also from
+    ``hydra.searchpath``) and keys under a known section (``+optimizer.params.x=1``, checked later
+    with the job) pass. Must run inside ``initialize_config_dir``.
+    """
+    overrides = [a for a in argv if not a.startswith("-")]
+    search = [o for o in overrides if o.lstrip("+~").startswith("hydra.searchpath")]
+    parsed = OverridesParser.create().parse_overrides(
+        [o for o in overrides if not o.lstrip("+~").startswith("hydra")])
+    if not parsed:
+        return
+    known = set(compose("config", overrides=search).keys())
+    loader = GlobalHydra.instance().config_loader()
+    for override in parsed:
+        key = override.key_or_group
+        top = key.split("/")[0].split(".")[0]
+        if override.is_delete() or top in known:
+            continue
+        if loader.get_group_options(key, ObjectType.CONFIG, config_name="config", overrides=search):
+            continue  # +group=option: a config group (Hydra checks the option)
+        paths = _dotted(OmegaConf.to_container(compose("config", overrides=search)))
+        for group in ("problem", "optimizer"):
+            for yaml in sorted((CONF_DIR / group).glob("*.yaml")):
+                paths += [p for p in _dotted(OmegaConf.to_container(OmegaConf.load(yaml)), group) if p not in paths]
+        nearest = _nearest_key(key, paths)
+        hint = f"did you mean {nearest}? " if nearest else ""
+        raise ConfigError(f"{override.input_line}: the config has no key {top!r}, so nothing would read it; "
+                          f"{hint}Top-level keys: {', '.join(sorted(known))}")
 
 
 _BUILT: set[str] = set()  # problem configs announced (build_problem caches the problems themselves)
@@ -267,6 +323,7 @@ def plan(argv: list[str]) -> SweepPlan:
     hydra_overrides = _hydra_overrides(argv)
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
+            check_keys(argv)
             jobs = expand_jobs(argv)
             if len(jobs) > 4:
                 print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
@@ -303,11 +360,11 @@ def preflight_plan(argv: list[str]) -> tuple[int, SweepPlan | None]:
     try:
         return 0, plan(argv)
     except (BenchError, AvioError, optimizers.OptimizerError) as err:  # ConfigError and the like; not a bug
-        print(f"error: {err}")
+        print(f"error: {err}", file=sys.stderr)
     except HydraException as err:
-        print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}")
+        print(f"error: {str(err).split(chr(10) + 'Config search path')[0].strip()}", file=sys.stderr)
     except OmegaConfBaseException as err:
-        print(f"error: {str(err).splitlines()[0]}")
+        print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
     return 2, None
 
 
@@ -321,4 +378,4 @@ def compose_job(overrides: list[str]) -> dict:
         GlobalHydra.instance().clear()
 
 
-__all__ = ["SweepPlan", "check_job", "compose_job", "expand_jobs", "plan", "preflight", "preflight_plan"]
+__all__ = ["SweepPlan", "check_job", "check_keys", "compose_job", "expand_jobs", "plan", "preflight", "preflight_plan"]

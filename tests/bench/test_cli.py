@@ -30,6 +30,7 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
     assert set(board["optimizer"]) == {"random", "one_plus_one"}
     assert (board["n_runs"] == 3).all() and (board["n_failed"] == 0).all()
     assert "Leaderboard" in proc.stdout and str(out) in proc.stdout
+    assert proc.stdout.strip().splitlines()[-1] == f"Report:      {out / 'report' / 'report.html'}"
 
 
 @pytest.mark.parametrize(
@@ -72,14 +73,14 @@ def test_bad_input_fails_before_any_work_with_one_clear_message(tmp_path, args, 
         main(["optimizer=random", *args, f"hydra.sweep.dir={tmp_path / 'sweep'}"])
     assert exit_info.value.code == 2
     out = capsys.readouterr()
-    assert message in out.out
+    assert message in out.err and out.out == ""  # bad input on stderr; stdout is for results
     assert "Traceback" not in out.out + out.err
     assert not (tmp_path / "sweep").exists()  # nothing ran
 
 
 def test_the_command_line_exits_2_without_a_traceback(tmp_path):
     proc = bench("optimizer=nope", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)
-    assert proc.returncode == 2 and "Available options in 'optimizer'" in proc.stdout
+    assert proc.returncode == 2 and "Available options in 'optimizer'" in proc.stderr and proc.stdout == ""
     assert "Traceback" not in proc.stdout + proc.stderr and not (tmp_path / "sweep").exists()
 
 

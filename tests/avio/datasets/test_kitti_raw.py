@@ -27,10 +27,10 @@ DRIVE = "2011_09_26_drive_0001_sync"
 
 
 @pytest.fixture(scope="module")
-def raw_dir(shared_data: Path) -> Path:
+def raw_dir(shared_data: Path, skip_no_data) -> Path:
     path = shared_data / "kitti_raw_2011_09_26_drive_0001"
     if not (path / DRIVE / "oxts" / "data").is_dir():
-        pytest.skip(f"{path} lacks the OXTS packets")
+        skip_no_data(f"{path} lacks the OXTS packets")
     return path
 
 

@@ -25,10 +25,10 @@ from avio.frontend.klt import (
 
 
 @pytest.fixture(scope="module")
-def real_paths(shared_data: Path) -> list[Path]:
+def real_paths(shared_data: Path, skip_no_data) -> list[Path]:
     paths = sorted((shared_data / "kitti_gray_2011_09_26").glob("*.png"))
     if len(paths) < 10:
-        pytest.skip(f"{shared_data / 'kitti_gray_2011_09_26'} lacks the 10 frames")
+        skip_no_data(f"{shared_data / 'kitti_gray_2011_09_26'} lacks the 10 frames")
     return paths
 
 

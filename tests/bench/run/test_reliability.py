@@ -112,7 +112,7 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
                  cwd=tmp_path, env=env)
     # the sweep goes on, its exit code says some job failed, and its last line counts them
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert proc.stdout.strip().splitlines()[-1] == "Jobs: 4 in all, 2 ok, 2 failed (exit code 1)"
+    assert "Jobs: 4 in all, 2 ok, 2 failed (exit code 1)" in proc.stdout.strip().splitlines()[-5:]
     assert "failed: job 2/4 sphere/failing/seed1" in proc.stdout
     failed = json.loads((tmp_path / "s" / "sphere" / "failing" / "seed1" / "record.json").read_text())
     assert failed["status"] == "failed" and "deliberate failure" in failed["error"]["message"]
@@ -145,9 +145,9 @@ def test_a_changed_setting_on_an_existing_sweep_is_refused_before_hydra_writes(t
     for change in (["budget.evals=32"], ["budget.evals=64", "optimizer.params.batch_size=16"]):
         proc = bench(*args, *change, cwd=tmp_path)
         assert proc.returncode == 2, proc.stdout + proc.stderr[-2000:]
-        assert "holds a job with other settings" in proc.stdout and "Traceback" not in proc.stdout + proc.stderr
+        assert "holds a job with other settings" in proc.stderr and "Traceback" not in proc.stdout + proc.stderr
         assert _tree(tmp_path / "s") == before  # nothing on disk changed, Hydra's files included
-    assert "budget.evals: 64 -> 32" in bench(*args, "budget.evals=32", cwd=tmp_path).stdout
+    assert "budget.evals: 64 -> 32" in bench(*args, "budget.evals=32", cwd=tmp_path).stderr
     again = bench(*args, "budget.evals=64", cwd=tmp_path)  # unchanged: skipped, identical records
     assert again.returncode == 0
     assert {k: v for k, v in _tree(tmp_path / "s").items() if k.endswith("record.json")} == \
@@ -166,7 +166,7 @@ def test_a_second_sweep_into_a_running_sweeps_folder_fails_fast_and_no_batch_is_
         time.sleep(0.02)
     t0 = time.perf_counter()
     second = bench(*args, cwd=tmp_path)
-    assert second.returncode == 2 and "in use by" in second.stdout and f"pid {first.pid}" in second.stdout
+    assert second.returncode == 2 and "in use by" in second.stderr and f"pid {first.pid}" in second.stderr
     assert time.perf_counter() - t0 < 60  # fails at once (the time is Python and Hydra starting)
     assert first.wait(timeout=300) == 0
     for seed in range(2):
@@ -216,7 +216,8 @@ def test_a_corrupt_record_fails_only_its_job_and_the_next_run_resumes_it(tmp_pat
         record.write_text(content)
         proc = bench(*args, cwd=tmp_path)
         assert proc.returncode == 1 and "Traceback" not in proc.stdout
-        assert proc.stdout.strip().splitlines()[-1] == "Jobs: 2 in all, 1 ok, 1 failed (exit code 1)"
+        assert proc.stdout.strip().splitlines()[-2:] == ["Jobs: 2 in all, 1 ok, 1 failed (exit code 1)",
+                                                         f"Records:     {tmp_path / 's'}"]
         assert "record.json: corrupt record" in proc.stdout
         assert bench(*args, cwd=tmp_path).returncode == 0  # resumed from its log
         assert _comparable(json.loads(record.read_text())) == _comparable(good)
@@ -225,7 +226,7 @@ def test_a_corrupt_record_fails_only_its_job_and_the_next_run_resumes_it(tmp_pat
 def test_a_sweep_dir_that_is_a_file_is_one_message(tmp_path):
     (tmp_path / "taken").write_text("")
     proc = bench(*FAST, "optimizer=random", f"hydra.sweep.dir={tmp_path / 'taken'}", cwd=tmp_path)
-    assert proc.returncode == 2 and "is a file, not a folder" in proc.stdout and "Traceback" not in proc.stderr
+    assert proc.returncode == 2 and "is a file, not a folder" in proc.stderr and "Traceback" not in proc.stderr
 
 
 NO_X0_PLUGIN = '''
@@ -247,6 +248,6 @@ def test_a_plugin_whose_constructor_lacks_x0_is_refused_before_any_work(tmp_path
     env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     proc = bench(*FAST, "optimizer=no_x0", "plugins=[no_x0_plugin]", f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
                  f"hydra.sweep.dir={tmp_path / 's'}", cwd=tmp_path, env=env)
-    assert proc.returncode == 2 and "unexpected keyword argument 'x0'" in proc.stdout
-    assert "optimizer=no_x0: cannot be built as NoX0(lower, upper, seed=, x0=, **params)" in proc.stdout
+    assert proc.returncode == 2 and "unexpected keyword argument 'x0'" in proc.stderr
+    assert "optimizer=no_x0: cannot be built as NoX0(lower, upper, seed=, x0=, **params)" in proc.stderr
     assert not (tmp_path / "s").exists()
