@@ -17,9 +17,10 @@ A job folder holds
 Every line of ``evals.jsonl`` also carries ``"job_key"``, the key of the job that wrote it (the
 ``job_key`` of ``job.json`` and ``record.json``): a log copied from another job folder is refused on
 resume and on skip (``bench.run.loop``), naming both files. Lines written before the key existed
-(harness 0.2 and older) carry none: they are still resumed or skipped when ``job.json`` is this job's,
-as they always were (refusing them would throw away every unfinished job of an upgraded sweep), but
-only as the log's leading lines: a keyless line after a keyed one is refused.
+(harness 0.2 and older) carry none: they are still resumed or skipped when ``job.json`` is this job's
+and the last keyless batch, evaluated again, gives the logged values bit for bit (refusing them would
+throw away every unfinished job of an upgraded sweep; trusting them on ``job.json`` alone would replay a
+copied log), and only as the log's leading lines: a keyless line after a keyed one is refused.
 
 No file of a job folder is ever written through a symbolic link (one could point outside the sweep,
 into another job or a file of the user's): the log is opened with ``O_NOFOLLOW``, the lock file too,

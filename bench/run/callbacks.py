@@ -20,7 +20,7 @@ from pathlib import Path
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from bench.records import FolderLock, LockError
+from bench.records import FolderLock, LockError, RecordError, open_no_follow
 
 log = logging.getLogger(__name__)
 
@@ -35,20 +35,25 @@ def note_outcome(sweep_dir: Path, num: int, label: str, outcome: dict) -> None:
     line = json.dumps({"num": num, "label": label, "status": outcome.get("status"),
                        "message": error.get("message", ""), "job_dir": outcome.get("job_dir")}) + "\n"
     try:
-        fd = os.open(Path(sweep_dir) / OUTCOMES, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        fd = open_no_follow(Path(sweep_dir) / OUTCOMES, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
         try:
             os.write(fd, line.encode())
         finally:
             os.close(fd)
-    except OSError as err:  # the job is then counted as "did not report" at the end
+    except (OSError, RecordError) as err:  # the job is then counted as "did not report" at the end
         log.error("%s: cannot note its outcome in %s: %s", label, sweep_dir, err)
 
 
 def read_outcomes(sweep_dir: Path) -> list[dict]:
     path = Path(sweep_dir) / OUTCOMES
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    try:
+        with open_no_follow(path, os.O_RDONLY, "r") as fh:
+            return [json.loads(line) for line in fh.read().splitlines() if line.strip()]
+    except RecordError as err:  # a link is not followed: every job then counts as "did not report"
+        log.error("%s", err)
+        return []
 
 
 class SweepReport(Callback):

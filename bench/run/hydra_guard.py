@@ -67,6 +67,7 @@ def _guarded(original):
             return task_function(cfg)
 
         try:
+            _refuse_links(config, job_dir_key, job_subdir_key)
             return original(task_function=task, config=config, job_dir_key=job_dir_key,
                             job_subdir_key=job_subdir_key, hydra_context=hydra_context,
                             configure_logging=configure_logging)
@@ -76,6 +77,26 @@ def _guarded(original):
             return setup_failed(config, job_dir_key, job_subdir_key, exc)
 
     return run_job
+
+
+def _refuse_links(config, job_dir_key: str, job_subdir_key: str | None) -> None:
+    """JobSetupError naming the link when the job folder, its ``.hydra/`` files or its log file is a
+    symbolic link: Hydra writes them with plain ``open``, which would follow it out of the sweep."""
+    from hydra.core.hydra_config import HydraConfig
+
+    previous = HydraConfig.instance().cfg
+    HydraConfig.instance().set_config(config)  # the folder's name may use ${hydra:...}
+    try:
+        job_dir = _job_dir(config, job_dir_key, job_subdir_key)
+    finally:
+        HydraConfig.instance().cfg = previous
+    hydra_dir = job_dir / ".hydra"
+    candidates = [job_dir, hydra_dir, *(hydra_dir.glob("*") if hydra_dir.is_dir() and not hydra_dir.is_symlink()
+                                         else ()), *(job_dir.glob("*.log") if job_dir.is_dir() else ())]
+    for path in candidates:
+        if path.is_symlink():
+            raise JobSetupError(f"{path} is a symbolic link (to {os.readlink(path)}); Hydra would write the job's "
+                                "set-up through it, possibly outside the sweep: replace it by the file itself")
 
 
 def _job_dir(config, job_dir_key: str, job_subdir_key: str | None) -> Path:

@@ -63,7 +63,7 @@ from bench.records import (
 )
 from bench.run.bookkeeping import account, batch_entry, job_record, outcome, problem_fields
 from bench.run.identity import config_hash, header_mismatch, job_header
-from bench.run.log_checks import finished_log_problem, foreign_line, linked_file
+from bench.run.log_checks import finished_log_problem, foreign_line, keyless_mismatch, linked_file
 from bench.run.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -126,7 +126,7 @@ def run_job(
         lock.release()
 
 
-def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | None]:
+def _previous_record(job_dir: Path, header: dict, problem) -> tuple[dict | None, str | None]:
     """(the finished record to return, or None to run; why the old record.json is unreadable, or None)."""
     try:
         previous = read_record(job_dir)
@@ -145,6 +145,7 @@ def _previous_record(job_dir: Path, header: dict) -> tuple[dict | None, str | No
             f"job_key {previous.get('job_key')} != {header['job_key']}")
         raise RunError(f"{job_dir} already holds a different job, finished ({why}); choose another hydra.sweep.dir")
     _refuse(finished_log_problem(job_dir, previous, header))
+    _refuse(keyless_mismatch(problem, scan_eval_log(job_dir)[0], job_dir))
     return previous, None
 
 
@@ -159,7 +160,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
     header = job_header(identity, problem, optimizer_class)
     _refuse(linked_file(job_dir))
     try:
-        previous, corrupt_note = _previous_record(job_dir, header)
+        previous, corrupt_note = _previous_record(job_dir, header, problem)
     except OSError as err:
         raise JobFolderError(f"{job_dir}: cannot read or set aside its record ({err})") from None
     if previous is not None:
@@ -179,6 +180,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
         optimizer = make_optimizer()
         entries, complete_bytes, file_bytes = scan_eval_log(job_dir)
         _refuse(foreign_line(entries, job_dir, header))  # RunError: nothing changed
+        _refuse(keyless_mismatch(problem, entries, job_dir))
         if entries:
             print(f"{label}: resuming: replaying {len(entries)} logged batches through the optimiser",
                   file=sys.stderr, flush=True)

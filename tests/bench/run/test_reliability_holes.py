@@ -80,6 +80,30 @@ def test_a_finished_record_beside_another_jobs_log_is_not_skipped(tmp_path):
     assert _snapshot(b) == before
 
 
+def _strip_keys(log: Path) -> None:
+    log.write_text("".join(json.dumps({k: v for k, v in json.loads(line).items() if k != "job_key"}) + "\n"
+                           for line in log.read_text().splitlines()))
+
+
+@pytest.mark.parametrize("finished", [False, True])
+def test_a_keyless_log_copied_from_another_job_is_refused_on_resume_and_on_skip(tmp_path, finished):
+    # before: an older harness's keyless log was trusted on job.json alone, so job A's log, copied into
+    # job B's folder, replayed (or was skipped) into B's record with A's values
+    _run(tmp_path / "a", problem=_OtherDrive("sphere"))
+    b = tmp_path / "b"
+    _run(b)
+    shutil.copy(tmp_path / "a" / EVAL_LOG, b / EVAL_LOG)
+    _strip_keys(b / EVAL_LOG)
+    if not finished:
+        (b / RECORD).unlink()
+    before = _snapshot(b)
+    with pytest.raises(RunError) as refused:
+        _run(b)
+    message = str(refused.value)
+    assert str(b / EVAL_LOG) in message and str(b / JOB_FILE) in message and "carry no job key" in message
+    assert _snapshot(b) == before
+
+
 @pytest.mark.parametrize("damage", ["missing", "empty", "shortened"])
 def test_a_finished_record_without_its_whole_log_is_not_skipped(tmp_path, damage):
     # before: skipped without a word, and the report then read a log that is not the record's
@@ -271,6 +295,43 @@ def test_the_writers_never_follow_a_link(tmp_path):
     with pytest.raises(OSError, match="is a symbolic link"):
         FolderLock(job).acquire()
     assert outside.read_text() == "keep\n" and all((job / n).is_symlink() for n in (EVAL_LOG, RECORD, ".lock"))
+
+
+@pytest.mark.parametrize("name", [".hydra/config.yaml", ".hydra", "__main__.log"])
+def test_hydras_files_as_links_are_refused_before_anything_is_written(tmp_path, name):
+    # before: Hydra wrote .hydra/*.yaml and the job's log through the link, outside the sweep
+    from bench.run import hydra_guard
+    from bench.run.log_checks import linked_file
+
+    job = tmp_path / "sweep" / "sphere" / "random" / "seed0"
+    (job / ".hydra").mkdir(parents=True)
+    outside = tmp_path / "outside"
+    outside.write_text("keep\n")
+    if name == ".hydra":
+        (job / ".hydra").rmdir()
+    (job / name).symlink_to(outside)
+    assert f"{job / name} is a symbolic link" in linked_file(job)
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module("bench.conf", version_base=None):
+        config = compose("config", overrides=["problem=sphere", "optimizer=random", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                                              "hydra.sweep.subdir=sphere/random/seed0"], return_hydra_config=True)
+    with pytest.raises(hydra_guard.JobSetupError, match=rf"{name} is a symbolic link"):
+        hydra_guard._refuse_links(config, "hydra.sweep.dir", "hydra.sweep.subdir")
+    assert outside.read_text() == "keep\n"
+
+
+def test_the_sweeps_outcome_list_is_never_written_or_read_through_a_link(tmp_path, caplog):
+    from bench.run.callbacks import OUTCOMES, note_outcome, read_outcomes
+
+    outside = tmp_path / "outside.jsonl"
+    outside.write_text('{"num": 0, "label": "forged", "status": "ok", "message": "", "job_dir": null}\n')
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / OUTCOMES).symlink_to(outside)
+    note_outcome(sweep, 1, "job 2/2", {"status": "ok", "job_dir": str(sweep)})
+    assert read_outcomes(sweep) == []  # every job then counts as "did not report"
+    assert outside.read_text().count("\n") == 1 and "is a symbolic link" in caplog.text
 
 
 def test_a_linked_job_file_is_exit_2_at_preflight(tmp_path, capsys):
