@@ -49,6 +49,7 @@ from bench.records import (
 )
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
+from bench.run.log_checks import linked_file
 from bench.space import Space
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -263,6 +264,9 @@ def check_job_dir(job_dir: Path, cfg: dict) -> None:
             refuse_symlink(job_dir / name)
         except RecordError as err:
             raise ConfigError(str(err)) from None
+    linked = linked_file(job_dir)  # Hydra's .hydra/ files and job log too
+    if linked:
+        raise ConfigError(linked)
     holder = lock_holder(job_dir)
     if holder:
         raise ConfigError(f"job folder {job_dir} is in use by {holder}; wait for it to end or choose another "

@@ -369,3 +369,14 @@ def test_a_job_folder_hydra_cannot_set_up_fails_that_job_under_each_launcher(tmp
     assert failed["status"] == "failed" and "File exists" in failed["error"]["message"]
     assert all(json.loads((sweep / "sphere" / "random" / f"seed{s}" / RECORD).read_text())["status"] == "ok"
                for s in (0, 2))
+
+
+def test_a_linked_hydra_file_is_exit_2_at_preflight(tmp_path):
+    from bench.run.preflight import ConfigError, check_job_dir
+
+    job = tmp_path / "job"
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").symlink_to(tmp_path / "elsewhere.yaml")
+    with pytest.raises(ConfigError, match=r"overrides.yaml is a symbolic link"):
+        check_job_dir(job, {"problem": {"name": "sphere"}})
+    assert not os.path.exists(tmp_path / "elsewhere.yaml")
