@@ -7,6 +7,7 @@ import sys
 
 from avio.errors import AvioError
 from bench.errors import BenchError
+from bench.report.archive import pack, records_restored
 from bench.report.build import build_report
 
 
@@ -22,10 +23,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-tables", action="store_true", help="skip the paper's Tables 1-3 and figures")
     parser.add_argument("--recompute", action="store_true",
                         help="re-run the VIO for the paper's tables even when the stored artifacts match the records")
+    parser.add_argument("--pack", action="store_true",
+                        help="then archive each folder's records into DIR/records.tar.xz and remove them "
+                             "(committed results; the report is rebuilt from the archive)")
     args = parser.parse_args(argv)
     try:
-        path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
-                            paper_tables=not args.no_tables, recompute=args.recompute)
+        with records_restored(args.dirs):  # a folder whose records are archived (bench/report/archive.py)
+            path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
+                                paper_tables=not args.no_tables, recompute=args.recompute)
+        for folder in args.dirs if args.pack else ():
+            print(pack(folder, remove=True))
     except (BenchError, AvioError) as err:  # ReportError, RecordError, StatsError, ...; anything else is a bug
         print(f"bench.report: error: {err}", file=sys.stderr)
         return 2
