@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from avio.errors import AvioError
+from bench.archive import pack, records_restored
 from bench.errors import BenchError
-from bench.report.archive import pack, records_restored
 from bench.report.build import build_report
 
 
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(committed results; the report is rebuilt from the archive)")
     args = parser.parse_args(argv)
     try:
-        with records_restored(args.dirs):  # a folder whose records are archived (bench/report/archive.py)
+        with records_restored(args.dirs):  # a folder whose records are archived (bench/archive.py)
             path = build_report(args.dirs, args.out, pairing=args.pairing, alpha=args.alpha,
                                 paper_tables=not args.no_tables, recompute=args.recompute)
         for folder in args.dirs if args.pack else ():

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from bench.report.archive import ARCHIVE, ArchiveError, pack, records_restored
+from bench.archive import ARCHIVE, ArchiveError, pack, records_restored
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _files(folder: Path) -> dict[str, bytes]:
