@@ -38,6 +38,7 @@ import numpy as np
 
 from avio.errors import AvioError
 from avio.filter._linalg import matmul, so3_exp
+from avio.filter.interface import MeasureWorkspace
 
 
 class MeasurementError(AvioError):
@@ -289,10 +290,11 @@ def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
 
 @numba.njit(cache=True, error_model="numpy")
 def measure_workspace():
-    """Scratch arrays of :func:`measure` (allocated once per batch, not per filter)."""
-    return (np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((3, 3, 3)), np.empty((3, 3)),
-            np.zeros((18, 27)), np.empty((6, 6)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
-            np.zeros((12, 18)), np.empty((3, 3)))
+    """Scratch arrays of :func:`measure` (allocated once per batch, not per filter;
+    avio.filter.interface.MeasureWorkspace)."""
+    return MeasureWorkspace(R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), Rc=np.empty((3, 3, 3)),
+                            pc=np.empty((3, 3)), G=np.zeros((18, 27)), M=np.empty((6, 6)), R12=np.empty((3, 3)),
+                            R13=np.empty((3, 3)), R23=np.empty((3, 3)), D=np.zeros((12, 18)), E=np.empty((3, 3)))
 
 
 
@@ -314,7 +316,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
-    R3, p3, Jsh, Rc, pc, G, M, R12, R13, R23, D, E = ws
+    R3, p3, Jsh, Rc, pc, G, M, R12, R13 = ws.R3, ws.p3, ws.Jsh, ws.Rc, ws.pc, ws.G, ws.M, ws.R12, ws.R13
+    R23, D, E = ws.R23, ws.D, ws.E
     # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose
