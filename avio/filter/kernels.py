@@ -6,7 +6,8 @@ outlier rejection, Kalman update, injection) is avio/filter/update.py. Equations
 Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column
 Jacobians, 16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work
 that numpy spread over ~200 calls per frame, whose overhead cost more than the arithmetic.
-numba with ``cache=True`` (compiled once, then loaded from avio/filter/__pycache__; NB numba's
+numba with non-aliasing array arguments and LLVM's SLP vectoriser (avio/filter/_simd.py:
+kernel_jit; the same bits, packed instructions where LLVM finds them) and ``cache=True`` (compiled once, then loaded from avio/filter/__pycache__; NB numba's
 cache does not notice edits to functions of other modules called from a cached one: after
 editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or propagation.py, delete
 avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
@@ -25,17 +26,17 @@ leading n axis (clones (2, n, ...)).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from avio.filter._linalg import copy1, copy2, solve
+from avio.filter._simd import kernel_jit
 from avio.filter.interface import FilterState, UpdateWorkspaces, ZeroVelocityWorkspace
 from avio.filter.measurement import measure_workspace, shifted_pose
 from avio.filter.propagation import propagate_one, propagate_workspace
 from avio.filter.update import inject, noise_workspace, outlier_workspace, update, update_workspace
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def propagate_covariance(Pi, Phi, Qd, T, U):
     """Covariance prediction of one filter, in place: ``P <- F P F^T + Q`` with
     ``F = blockdiag(Phi, I_12)`` (clones have no dynamics), Phi (15, 15) the core error
@@ -68,7 +69,7 @@ def propagate_covariance(Pi, Phi, Qd, T, U):
             Pi[b, a] = T[a, b]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
     """Slide the window of one filter, in place: drop clone k-2 (cp (2, 3), cR (2, 3, 3)), move
     k-1 down, clone the current exposure-time pose (:func:`shifted_pose`); its covariance rows
@@ -109,7 +110,7 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
             Pi[21 + a, 21 + b] = acc
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
     """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
@@ -121,13 +122,13 @@ def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, 
     zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, zero_velocity_workspace())
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def zero_velocity_workspace():
     """Scratch arrays of :func:`zero_velocity_update_into` (avio.filter.interface.ZeroVelocityWorkspace)."""
     return ZeroVelocityWorkspace(S=np.empty((3, 3)), Z=np.empty((3, 28)), dx=np.empty(27), K=np.empty((27, 27)))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, zws):
     """:func:`zero_velocity_update` with its scratch zws passed in (:func:`zero_velocity_workspace`)."""
     S, Z, dx, K = zws.S, zws.Z, zws.dx, zws.K
@@ -153,7 +154,7 @@ def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps
     inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _bad(R, p, v, Pi, max_variance, max_speed):
     """Divergence test of one filter (docs/model.md, Eq. 51): non-finite state or covariance, a
     covariance diagonal above max_variance, or a speed above max_speed."""
@@ -173,7 +174,7 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@kernel_jit(nogil=True)
 def run_filters(lo, hi, seq, cal, cfg, out):
     """All frames of filters lo..hi-1 (avio/filter/batch.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order (docs/model.md,
@@ -278,7 +279,7 @@ def run_filters(lo, hi, seq, cal, cfg, out):
             copy1(out.sigma[i, k], sig0)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _write_frame(out, i, k, R, p, v, ba, bg):
     """Filter i's estimates at frame k into out (interface.Outputs)."""
     copy1(out.p[i, k], p)
@@ -288,7 +289,7 @@ def _write_frame(out, i, k, R, p, v, ba, bg):
     copy1(out.bg[i, k], bg)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _clear_updates(out, i, record):
     """Filter i's update statistics (and recorded decisions) zeroed before its run."""
     out.n_updates[i, :] = 0
@@ -302,7 +303,7 @@ def _clear_updates(out, i, record):
         out.used[i] = 0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _clear_update(out, i, k, j, record):
     """Frame k's update of filter i undone in the outputs (it diverged there; j its triplet)."""
     out.n_updates[i, k] = 0

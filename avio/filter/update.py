@@ -8,10 +8,10 @@ allocated once per filter range."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from avio.filter._linalg import copy2, matmul, so3_exp, solve
+from avio.filter._simd import kernel_jit
 from avio.filter.interface import NoiseWorkspace, OutlierWorkspace, UpdateWorkspace
 from avio.filter.measurement import measure
 from avio.filter.outliers import (
@@ -26,7 +26,7 @@ from avio.filter.outliers import (
 )
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _rotate(Rm, dtheta, E, T):
     so3_exp(dtheta[0], dtheta[1], dtheta[2], E)
     matmul(Rm, E, T)
@@ -34,7 +34,7 @@ def _rotate(Rm, dtheta, E, T):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
     """Add the error-state correction dx (27,) to one filter's nominal state (local rotation
     errors, ``R <- R exp(dtheta)``), in place (E, T (3, 3): scratch); docs/model.md, Eq. 8."""
@@ -51,7 +51,7 @@ def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run;
     avio.filter.interface.UpdateWorkspace)."""
@@ -65,7 +65,7 @@ def update_workspace(F):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
     pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
@@ -81,7 +81,7 @@ def noise_workspace(F):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
     (avio.filter.outliers.innovations_workspace, then avio.filter.outliers.ransac_workspace)."""
@@ -118,7 +118,7 @@ NOISE_FLOOR = 0.01
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of every feature (G (M, 6, F) the used
     residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
@@ -143,7 +143,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
     covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
