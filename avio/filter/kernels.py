@@ -3,19 +3,19 @@
 update, the window slide and the divergence test; the trifocal update (measurement chain,
 outlier rejection, Kalman update, injection) is avio/filter/update.py. Equations: docs/model.md.
 
-Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column
-Jacobians, 16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work
-that numpy spread over ~200 calls per frame, whose overhead cost more than the arithmetic.
-numba with non-aliasing array arguments and LLVM's SLP vectoriser (avio/filter/_simd.py:
-kernel_jit; the same bits, packed instructions where LLVM finds them) and ``cache=True`` (compiled once, then loaded from avio/filter/__pycache__; NB numba's
-cache does not notice edits to functions of other modules called from a cached one: after
-editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or propagation.py, delete
-avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
-numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
-filter runs alone on one thread (:func:`run_filters` runs a contiguous range of the batch, one
-filter after the other, with one set of workspaces allocated once, so nothing is allocated per
-frame; it releases the GIL and avio/filter/batch.py runs one range per thread), so a batch gives the
-same numbers as single runs whatever the thread count.
+Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column Jacobians,
+16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work that numpy spread
+over ~200 calls per frame, whose overhead cost more than the arithmetic. numba with non-aliasing
+array arguments and LLVM's SLP vectoriser (avio/filter/_simd.py: kernel_jit; the same bits, packed
+instructions where LLVM finds them) and ``cache=True`` (compiled once, then loaded from
+avio/filter/__pycache__; NB numba's cache does not notice edits to functions of other modules called
+from a cached one: after editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or
+propagation.py, delete avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division
+by zero gives inf/NaN as numpy did; such features are dropped) and no fastmath, so every run gives
+the same bits. Each filter runs alone on one thread (:func:`run_filters` runs a contiguous range of
+the batch, one filter after the other, with one set of workspaces allocated once, so nothing is
+allocated per frame; it releases the GIL and avio/filter/batch.py runs one range per thread), so a
+batch gives the same numbers as single runs whatever the thread count.
 
 Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (docs/model.md, Eq. 8).
 One filter: R (3, 3) ``R_world_imu``; p, v, ba, bg (3,); clones cp0, cp1 (3,), cR0, cR1 (3, 3)
