@@ -64,9 +64,10 @@ def _axpy_rows(dst, a, W, src, nk, ncols):
         if nz:
             for b in range(ncols):
                 for lane in range(LANES):
-                    w = W[a, k, lane]
-                    old = dst[a, b, lane]
-                    dst[a, b, lane] = old + w * src[k, b, lane] if w != 0.0 else old
+                    # every load first, then a select: LLVM packs selects, not branches around loads
+                    w, old, x = W[a, k, lane], dst[a, b, lane], src[k, b, lane]
+                    new = old + w * x
+                    dst[a, b, lane] = new if w != 0.0 else old
 
 
 @kernel_jit
