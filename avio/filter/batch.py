@@ -44,7 +44,6 @@ import numpy as np
 
 from avio.calibration import Calibration
 from avio.filter import kernels as _kernels
-from avio.filter import lanes as _lanes
 from avio.filter.config import FilterConfig, FilterError, FilterResult
 from avio.filter.interface import Calibrations, Outputs, SequenceInputs, Settings
 from avio.filter.prepare import _Prepared, prepare
@@ -90,7 +89,7 @@ _kernel_loaded = False
 def _kernel_cached() -> bool | None:
     """Whether numba's cache holds the filter kernel for the current source (None: unknown)."""
     try:
-        return bool(_lanes.run_block._cache._cache_file._load_index())
+        return bool(_kernels.run_filters._cache._cache_file._load_index())
     except AttributeError:  # numba's private cache API changed: cannot tell
         return None
 
@@ -265,19 +264,14 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # default job's batches four ranges per thread idled a thread for ~10 % of the time
     # (`python benchmarks/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
-    # Blocks of filters in lock-step (avio/filter/lanes.py), at most LANES each, fewer when the
-    # threads would otherwise idle (batch 8 on 2 threads: two blocks of 4).
-    size = min(_lanes.LANES, -(-n // n_threads))
-    blocks = [(lo, min(lo + size, n)) for lo in range(0, n, size)]
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
         if n_threads == 1:
-            for lo, hi in blocks:
-                _lanes.run_block(lo, hi, seq, cal, settings, out)
+            _kernels.run_filters(0, n, seq, cal, settings, out)
         else:
             with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
-                jobs = [pool.submit(_lanes.run_block, lo, hi, seq, cal, settings, out) for lo, hi in blocks]
+                jobs = [pool.submit(_kernels.run_filters, i, i + 1, seq, cal, settings, out) for i in range(n)]
                 for job in jobs:
                     job.result()
     o = out

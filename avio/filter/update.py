@@ -175,26 +175,15 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     Equations (docs/model.md): residuals and Jacobians Eqs. 19-33, noise Eqs. 34-36, outliers
     Eqs. 37-39, update Eqs. 40-43, statistics Eqs. 44-46.
     """
-    u_ = ws.update
-    n_valid, n_ok = update_measure(x, omega, cal, i, uv, valid, cfg, ws)
-    project(u_.C, x.P, u_.CP, u_.PCt, u_.Sig)
-    used, nis, log_det_S, dof, nll = update_solve(valid, cfg, ws, record, decided)
-    gain_downdate(u_.PCt, u_.X, u_.CP, x.P, u_.dx, u_.K)
-    # Eq. (8): the injection.
-    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, u_.dx, u_.E3, u_.T3)
-    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
-
-
-@kernel_jit
-def update_measure(x, omega, cal, i, uv, valid, cfg, ws):
-    """The measurement stage of :func:`update`: residuals, Jacobians, C (into ws), the usable
-    features and their noise model (Eqs. 19-36). Returns (valid features, usable features)."""
     F, d = uv.shape[0], 12
-    u_, n_ = ws.update, ws.noise
-    r4, J4, C, t12, t13 = u_.r4, u_.J4, u_.C, u_.t12, u_.t13
-    ok = u_.ok
-    G4, r, J, Gp, Rm, sd, Lm, ldR = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR
+    u_, n_, o_ = ws.update, ws.noise, ws.outliers
+    r4, J4, C, PCt, Sig, t12, t13, HP, z = u_.r4, u_.J4, u_.C, u_.PCt, u_.Sig, u_.t12, u_.t13, u_.HP, u_.z
+    ok, inl, gate, A, Mx, X, K, dx, CP = u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X, u_.K, u_.dx, u_.CP
+    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
+    rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
     sigma_px, max_transfer_gain, min_parallax_m = cfg.sigma_px, cfg.max_transfer_gain, cfg.min_parallax_m
+    mode, chi2_threshold = cfg.mode, cfg.chi2_threshold
+    Pi = x.P
     # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
     # G4 and the chain C (H = J C).
     measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
@@ -247,14 +236,8 @@ def update_measure(x, omega, cal, i, uv, valid, cfg, ws):
                     J[a, b, f] = 0.0
                 for b in range(M):
                     Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
-    return n_valid, n_ok
-
-
-@kernel_jit
-def project(C, Pi, CP, PCt, Sig):
-    """CP = C P (C (12, 27) is ~60 % zeros, which matmul skips), PCt = its transpose (P (27, 27)
-    is symmetric), Sigma = C P C^T (12, 12), symmetrised (Eq. 37)."""
-    d = 12
+    # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
+    # symmetric), Sigma = C P C^T (symmetrised; Eq. 37).
     matmul(C, Pi, CP)
     for a in range(27):
         for b in range(d):
@@ -264,20 +247,6 @@ def project(C, Pi, CP, PCt, Sig):
         for b in range(a):
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
-
-
-@kernel_jit
-def update_solve(valid, cfg, ws, record, decided):
-    """The outlier tests and the information-form solve of :func:`update` (Eqs. 37-46), after
-    :func:`update_measure` and :func:`project`: X = (I + A Sigma)^-1 [A | beta] into ws.update.X.
-    Returns (used, nis, log_det_S, dof, nll)."""
-    F, d = valid.shape[0], 12
-    u_, n_, o_ = ws.update, ws.noise, ws.outliers
-    Sig, HP, z, ok, inl, gate, A, Mx, X = u_.Sig, u_.HP, u_.z, u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X
-    r, J, Rm, sd, Lm, ldR, ldS = n_.r, n_.J, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
-    rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
-    mode, chi2_threshold = cfg.mode, cfg.chi2_threshold
-    log_s2 = np.log(cfg.sigma_px * cfg.sigma_px)
     for f in range(F):
         inl[f] = ok[f]
     # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
@@ -361,14 +330,6 @@ def update_solve(valid, cfg, ws, record, decided):
             acc += Sig[a, b] * X[b, d]
         nis -= beta[a] * acc
     dof = M * used
-    return used, nis, log_det_S, dof, nll
-
-
-@kernel_jit
-def gain_downdate(PCt, X, CP, Pi, dx, K):
-    """dx (27,) = P C^T X[:, 12] and the downdate P -= (P C^T X[:, :12]) C P of :func:`update`,
-    K (27, 12): scratch (Eqs. 41-42)."""
-    d = 12
     # Eq. (41): dx = P C^T (I + A Sigma)^-1 beta.
     for a in range(27):
         acc = 0.0
@@ -390,3 +351,6 @@ def gain_downdate(PCt, X, CP, Pi, dx, K):
                 Pi[a, c] -= kab * CP[b, c]
         for c in range(a):
             Pi[c, a] = Pi[a, c]
+    # Eq. (8): the injection.
+    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)
+    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
