@@ -8,24 +8,29 @@ the simplest of its dense phases) written three ways, timed side by side, bits c
   loop on a run-time alias check and runs it in 4-wide AVX2 (``vmulpd``);
 - ``lanes L``: L filters in lock-step, the calibration axis innermost (P (27, 27, L)), L a
   compile-time constant, meant to make each multiply-add one L-wide operation across filters
-  (the layout issue 13 proposes). LLVM, as numba 0.68 drives it, unrolls the constant lane loops
-  and leaves them scalar: its SLP vectoriser is off by default, and with NUMBA_SLP_VECTORIZE=1,
-  unsigned indices or a freshly allocated output it still does not pack them (measured);
-- ``lanes L (run-time)``: the same with the lane count read from the shape, so the loop
-  vectoriser takes the lane loops (with a run-time alias check each).
+  (the layout issue 13 proposes). Compiled as numba does by default, LLVM unrolls the constant
+  lane loops and leaves them scalar: numba tells it nothing about aliasing and its SLP vectoriser
+  is off, so this variant alone was not a fair test of the layout (issue 30);
+- ``lanes L +noalias+SLP``: the same source with the array arguments declared non-aliasing and
+  LLVM's SLP vectoriser on (benchmarks/simd.py: how numba 0.68.1 exposes both), which packs
+  the lane loops;
+- ``committed +noalias+SLP``: the committed function with the same two switches;
+- ``lanes L (run-time)``: the lane count read from the shape, so the loop vectoriser takes the
+  lane loops (with a run-time alias check each).
 
     python benchmarks/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
 
-Prints microseconds per filter and call (median of --repeats), the ratio to ``committed`` and
-whether the result is bit-identical, plus the count of scalar and packed multiplies in each
-compiled version. Written out here, not in avio: these are the alternatives measured, not the
+Prints CPU microseconds per filter and call (median of --repeats; process CPU time, fairer than
+wall time on a shared machine), the median of the per-repeat ratios to ``committed`` (each repeat
+times every variant once, in a new random order: paired), whether the result is bit-identical, and
+the count of scalar and packed FP64 arithmetic instructions of each compiled version
+(benchmarks/simd.py: fp_counts; deterministic, unlike the times). Written out here, not in avio: these are the alternatives measured, not the
 kernel.
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 from pathlib import Path
@@ -35,10 +40,14 @@ import numpy as np
 from llvmlite import binding as llvm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from simd import fp_counts, njit_packed, slp_vectorize
 
 from avio.filter.kernels import propagate_covariance
 
 committed = numba.njit(error_model="numpy")(propagate_covariance.py_func)  # uncached: its assembly can be read
+committed_packed = njit_packed(propagate_covariance.py_func, error_model="numpy")  # compiled with SLP on
 
 
 @numba.njit(error_model="numpy")
@@ -84,11 +93,11 @@ def _add_rows(dst, a, Phi, src, ncols, L):
                     dst[a, b, k] += Phi[a, c, k] * src[c, b, k]
 
 
-def lanes_kernel(L: int, runtime: bool = False):
+def lanes_kernel(L: int, runtime: bool = False, packed: bool = False):
     """propagate_covariance of L filters in lock-step: P (27, 27, L), Phi (15, 15, L). runtime:
-    the lane count read from P's shape instead of compiled in."""
+    the lane count read from P's shape instead of compiled in; packed: the arrays declared
+    non-aliasing (compile it with SLP on: benchmarks/simd.py)."""
 
-    @numba.njit(error_model="numpy")
     def lanes(P, Phi, Qd, T, U):
         L = P.shape[2] if runtime else L_fixed
         for a in range(15):
@@ -111,7 +120,7 @@ def lanes_kernel(L: int, runtime: bool = False):
                     P[b, a, k] = T[a, b, k]
 
     L_fixed = L
-    return lanes
+    return njit_packed(lanes, error_model="numpy") if packed else numba.njit(error_model="numpy")(lanes)
 
 
 @numba.njit
@@ -120,9 +129,9 @@ def _calls(kernel, P, Phi, Qd, T, U, n):
         kernel(P, Phi, Qd, T, U)
 
 
-def _multiplies(kernel) -> str:
-    asm = "".join(kernel.inspect_asm().values())
-    return f"{len(re.findall('vmulsd', asm))} scalar / {len(re.findall('vmulpd', asm))} packed multiplies"
+def _counts(kernel) -> str:
+    c = fp_counts(kernel)
+    return f"{c['scalar']:4d} scalar / {c['packed']:3d} packed FP64"
 
 
 def _inputs(n: int, seed: int = 0):
@@ -138,6 +147,37 @@ def _inputs(n: int, seed: int = 0):
     return P, Phi, np.eye(15) * 1e-6
 
 
+def _candidates(args) -> dict:
+    """name: (kernel, lanes, compiled with the SIMD switches)."""
+    out = {"committed": (committed, 1, False), "rows": (rows, 1, False), "committed +noalias+SLP": (committed_packed, 1, True)}
+    out.update({f"lanes {L}": (lanes_kernel(L), L, False) for L in args.lanes})
+    out.update({f"lanes {L} +noalias+SLP": (lanes_kernel(L, packed=True), L, True) for L in args.lanes})
+    out.update({f"lanes {L} (run-time)": (lanes_kernel(L, runtime=True), L, False) for L in args.runtime_lanes})
+    return out
+
+
+def _prepare(candidates, P, Phi, Qd, reference) -> dict:
+    """Compile each variant (with SLP on where asked), check its bits; name: (inputs, same bits)."""
+    state = {}
+    L_max = P.shape[0]
+    for name, (kernel, L, packed) in candidates.items():
+        with slp_vectorize(packed):
+            if L == 1:
+                Ps, T, U = P.copy(), np.empty((15, 27)), np.empty((15, 15))
+                for i in range(L_max):
+                    kernel(Ps[i], Phi[i], Qd, T, U)
+                inputs, same = (P[0].copy(), Phi[0], T, U), np.array_equal(Ps, reference)
+            else:
+                PL, PhiL = np.ascontiguousarray(P[:L].transpose(1, 2, 0)), np.ascontiguousarray(Phi[:L].transpose(1, 2, 0))
+                TL, UL = np.empty((15, 27, L)), np.empty((15, 15, L))
+                out = PL.copy()
+                kernel(out, PhiL, Qd, TL, UL)
+                inputs, same = (PL, PhiL, TL, UL), np.array_equal(out.transpose(2, 0, 1), reference[:L])
+            _calls(kernel, inputs[0].copy(), inputs[1], Qd, inputs[2], inputs[3], 1)  # the loop compiled alike
+        state[name] = (inputs, same)
+    return state
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--lanes", type=int, nargs="+", default=[4, 8, 16])
@@ -145,44 +185,31 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--calls", type=int, default=20000, help="filter-calls per timing")
     args = p.parse_args(argv)
-    L_max = max(args.lanes + args.runtime_lanes)
-    P, Phi, Qd = _inputs(L_max)
-    T, U = np.empty((15, 27)), np.empty((15, 15))
+    P, Phi, Qd = _inputs(max(args.lanes + args.runtime_lanes))
     reference = P.copy()
-    for i in range(L_max):
+    T, U = np.empty((15, 27)), np.empty((15, 15))
+    for i in range(len(P)):
         committed(reference[i], Phi[i], Qd, T, U)
-    candidates = {"committed": (committed, 1), "rows": (rows, 1)}
-    candidates.update({f"lanes {L}": (lanes_kernel(L), L) for L in args.lanes})
-    candidates.update({f"lanes {L} (run-time)": (lanes_kernel(L, runtime=True), L) for L in args.runtime_lanes})
+    candidates = _candidates(args)
+    state = _prepare(candidates, P, Phi, Qd, reference)
     times = {name: [] for name in candidates}
-    state = {}
-    for name, (kernel, L) in candidates.items():  # compile, check the bits, keep the inputs
-        if L == 1:
-            Ps = P.copy()
-            for i in range(L_max):
-                kernel(Ps[i], Phi[i], Qd, T, U)
-            state[name] = (P[0].copy(), Phi[0], T, U, np.array_equal(Ps, reference))
-        else:
-            PL, PhiL = np.ascontiguousarray(P[:L].transpose(1, 2, 0)), np.ascontiguousarray(Phi[:L].transpose(1, 2, 0))
-            TL, UL = np.empty((15, 27, L)), np.empty((15, 15, L))
-            out = PL.copy()
-            kernel(out, PhiL, Qd, TL, UL)
-            state[name] = (PL, PhiL, TL, UL, np.array_equal(out.transpose(2, 0, 1), reference[:L]))
-    for _ in range(args.repeats):  # interleaved, so a drift of the machine's speed hits all alike
-        for name, (kernel, L) in candidates.items():
-            P0, Phi0, T0, U0, _ = state[name]
+    rng = np.random.default_rng(0)
+    for _ in range(args.repeats):  # paired: every variant once per repeat, in a new order each
+        for name in rng.permutation(list(candidates)):
+            kernel, L, _ = candidates[name]
+            (P0, Phi0, T0, U0), _ = state[name]
             work = P0.copy()
             n = max(1, args.calls // L)
-            t = time.perf_counter()
+            t = time.process_time()
             _calls(kernel, work, Phi0, Qd, T0, U0, n)
-            times[name].append((time.perf_counter() - t) / (n * L) * 1e6)
-    base = np.median(times["committed"])
-    print(f"covariance prediction, median of {args.repeats} x {args.calls} filter-calls "
+            times[name].append((time.process_time() - t) / (n * L) * 1e6)
+    base = np.asarray(times["committed"])
+    print(f"covariance prediction, median of {args.repeats} x {args.calls} filter-calls, CPU time "
           f"(numba {numba.__version__}, CPU {llvm.get_host_cpu_name()})")
-    for name, (kernel, _) in candidates.items():
-        us = np.median(times[name])
-        print(f"  {name:21s} {us:7.3f} us/filter  {base / us:5.2f}x  bit-identical={state[name][4]}  "
-              f"({_multiplies(kernel)})")
+    for name, (kernel, _, _) in candidates.items():
+        us = np.asarray(times[name])
+        print(f"  {name:24s} {np.median(us):7.3f} us/filter  {np.median(base / us):5.2f}x  "
+              f"bit-identical={state[name][1]}  ({_counts(kernel)})")
 
 
 if __name__ == "__main__":

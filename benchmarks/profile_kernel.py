@@ -66,8 +66,8 @@ def _replace(src: str, old: str, new: str, where: str = "avio/filter/update.py")
 
 def patch_update(src: str) -> str:
     """avio/filter/update.py with every phase of the update wrapped in a repeat loop (module docstring)."""
-    src = _replace(src, "           record, decided):", "           record, decided, rep):")
-    src = _wrap(src, "    measure(R, p, v, cp0", "    # Eq. (36): without baseline", 0)
+    src = _replace(src, "cfg, ws, record, decided):", "cfg, ws, record, decided, rep):")
+    src = _wrap(src, "    measure(x.R, x.p, x.v, x.cp0", "    # Eq. (36): without baseline", 0)
     src = _wrap(src, "    matmul(C, Pi, CP)\n", "    for f in range(F):\n        inl[f] = ok[f]", 1)
     src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py", 2)
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
@@ -83,7 +83,7 @@ def patch_update(src: str) -> str:
     src = _replace(src, "            kab = K[a, b]\n", "            kab = (-1.0 if _q % 2 == 0 else 1.0) * K[a, b]\n")
     src = _replace(src, "                Pi[a, c] -= kab * CP[b, c]\n", "                Pi[a, c] += kab * CP[b, c]\n")
     src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            kab = (-1.0",
-                "    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)", 6)
+                "    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)", 6)
     return src
 
 
@@ -91,24 +91,22 @@ def patch_kernels(src: str) -> str:
     """avio/filter/kernels.py: run_filters takes ``rep`` and passes it to the update; the state
     prediction wrapped, the covariance prediction and the slide run again on scratch copies."""
     at = "avio/filter/kernels.py"
-    src = _replace(src, "                out_nll, out_slots, out_used):",
-                   "                out_nll, out_slots, out_used, rep):", at)
-    src = _replace(src, "chi2_threshold, ws, mws, nws, ows, record, decided)\n",
-                   "chi2_threshold, ws, mws, nws, ows, record, decided, rep)\n", at)
-    src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n",
-                   "    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))\n"
+    src = _replace(src, "def run_filters(lo, hi, seq, cal, cfg, out):", "def run_filters(lo, hi, seq, cal, cfg, out, rep):", at)
+    src = _replace(src, "record, decided)\n", "record, decided, rep)\n", at)
+    src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))\n",
+                   "    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))\n"
                    "    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
                    "    cps, cRs = np.empty((2, 3)), np.empty((2, 3, 3))\n", at)
     src = _wrap(src, "                propagate_one(", "                propagate_covariance(P, Phi", 7, at)
-    src = _replace(src, "                propagate_covariance(P, Phi, Qd[k], Tq, U)\n",
+    src = _replace(src, "                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)\n",
                    "                for _q in range(rep[8] - 1):\n                    Ps[:] = P\n"
-                   "                    propagate_covariance(Ps, Phi, Qd[k], Tq, U)\n"
-                   "                propagate_covariance(P, Phi, Qd[k], Tq, U)\n", at)
-    src = _replace(src, "            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)\n",
+                   "                    propagate_covariance(Ps, Phi, seq.Qd[k], Tq, U)\n"
+                   "                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)\n", at)
+    src = _replace(src, "            slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)\n",
                    "            for _q in range(rep[9] - 1):\n                Ps2[:] = P\n                cps[:] = cp\n"
                    "                cRs[:] = cR\n"
-                   "                slide(R_new, p_new, v_new, omega, td[i], cps, cRs, Ps2, R3, p3, Jsh, E, NR)\n"
-                   "            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)\n", at)
+                   "                slide(R_new, p_new, v_new, omega, cal.td_s[i], cps, cRs, Ps2, R3, p3, Jsh, E, NR)\n"
+                   "            slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)\n", at)
     return src
 
 
@@ -116,7 +114,8 @@ def patch_batch(src: str) -> str:
     """avio/filter/batch.py: a module-level REP (all ones) passed to every run_filters call."""
     at = "avio/filter/batch.py"
     src = _replace(src, "def run(sequence", f"REP = np.ones({len(PHASES)}, np.int64)\n\n\ndef run(sequence", at)
-    return _replace(src, "            out_slots, out_used)\n", "            out_slots, out_used, REP)\n", at)
+    src = _replace(src, "settings, out)", "settings, out, REP)", at)  # the one-thread call
+    return _replace(src, "settings, out)", "settings, out, REP)", at)  # the threads' calls
 
 
 #: file under avio/ -> its patch

@@ -8,11 +8,12 @@ matrix costs more than the arithmetic.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from avio.filter._simd import kernel_jit
 
-@numba.njit(cache=True, error_model="numpy")
+
+@kernel_jit
 def so3_exp(w0, w1, w2, out):
     """Rodrigues' formula of the rotation vector (w0, w1, w2) rad into out (3, 3); small
     angles use the Taylor series (docs/model.md, Eq. 2)."""
@@ -34,7 +35,7 @@ def so3_exp(w0, w1, w2, out):
     out[2, 1] = a * w0 + b * w1 * w2
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def copy1(dst, src):
     """dst[:] = src for 1-D arrays of equal length (an explicit loop: numba's array-to-array
     slice assignment compiles a shape check and its error message, ~8 s of the first compile)."""
@@ -42,7 +43,7 @@ def copy1(dst, src):
         dst[i] = src[i]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def copy2(dst, src):
     """dst[:, :] = src for 2-D arrays of equal shape (as :func:`copy1`)."""
     for i in range(dst.shape[0]):
@@ -50,7 +51,7 @@ def copy2(dst, src):
             dst[i, j] = src[i, j]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def matmul(A, B, out):
     """out = A @ B for small 2-D arrays (i-k-j order: the inner loop runs over contiguous rows)."""
     for i in range(A.shape[0]):
@@ -63,7 +64,7 @@ def matmul(A, B, out):
                     out[i, j] += a * B[k, j]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def solve(A, B):
     """Solve A X = B in place (B becomes X; A is destroyed) by Gaussian elimination with
     partial pivoting (as LAPACK's gesv; written out for the 12x12 systems of every filter

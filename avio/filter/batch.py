@@ -45,6 +45,7 @@ import numpy as np
 from avio.calibration import Calibration
 from avio.filter import kernels as _kernels
 from avio.filter.config import FilterConfig, FilterError, FilterResult
+from avio.filter.interface import Calibrations, Outputs, SequenceInputs, Settings
 from avio.filter.prepare import _Prepared, prepare
 from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
 from avio.sequence import Sequence
@@ -161,8 +162,37 @@ def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-def _cal_arrays(cal: Calibration) -> tuple:
-    return tuple(_f64(getattr(cal, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m"))
+def _calibrations(cal: Calibration) -> Calibrations:
+    """The kernel's Calibrations; a calibration with non-finite values is diverged before it
+    starts (frame 0; Eq. 51)."""
+    n = len(cal)
+    frozen = ~np.all(np.isfinite(np.concatenate(
+        [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
+         cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
+    return Calibrations(fx=_f64(cal.fx_px), fy=_f64(cal.fy_px), cx=_f64(cal.cx_px), cy=_f64(cal.cy_px),
+                        R_cam_imu=_f64(cal.R_cam_imu), p_imu_cam_m=_f64(cal.p_imu_cam_m), td_s=_f64(cal.time_offset_s),
+                        frozen=frozen)
+
+
+def _sequence_inputs(sequence: Sequence, prep: _Prepared, config: FilterConfig) -> SequenceInputs:
+    """The kernel's SequenceInputs: the initial state (Eq. 9) and the prepared per-frame inputs."""
+    st, pre = _State(sequence, 1, config), prep.pre
+    return SequenceInputs(R0=st.R[0], p0=st.p[0], v0=st.v[0], P0=st.P0, ba0=st.ba[0], bg0=st.bg[0],
+                          g=_f64(sequence.gravity_world_mps2), dR=pre.dR, dv=pre.dv, dp=pre.dp, S=pre.S, SS=pre.SS,
+                          Vbg=pre.Vbg, Pbg=pre.Pbg, T_s=_f64(pre.T_s), gyro_frame=_f64(pre.gyro_frame_radps),
+                          Qd=prep.Qd, triplet_of_frame=prep.triplet_of_frame, uv=prep.uv_px, valid=prep.valid,
+                          stationary=prep.stationary)
+
+
+def _outputs(n: int, N: int, used_shape: tuple) -> Outputs:
+    """The kernel's Outputs for n filters and N frames (used: (n, n_trip, F) or (0, ...))."""
+    def i64():
+        return np.zeros((n, N), np.int64)
+
+    return Outputs(p=np.empty((n, N, 3)), R=np.empty((n, N, 3, 3)), v=np.empty((n, N, 3)), sigma=np.empty((n, N, 15)),
+                   ba=np.empty((n, N, 3)), bg=np.empty((n, N, 3)), n_updates=i64(), n_outliers=i64(),
+                   diverged_at=np.empty(n, np.int64), nis=np.empty((n, N)), log_det_S=np.empty((n, N)), dof=i64(),
+                   nll=np.empty((n, N)), nll_slots=i64(), used=np.zeros(used_shape, np.uint8))
 
 
 _MODES = {"none": MODE_NONE, "ransac": MODE_RANSAC, "mahalanobis": MODE_GATE,
@@ -218,29 +248,16 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     min_parallax_m = 0.0 if everything else config.min_parallax_m
     if config.outlier_decisions != "own":  # imposed from the reference
         prep, config = _imposed(sequence, config, prep)
-    cal = calibrations
-    n, N = len(cal), sequence.n_frames
+    n, N = len(calibrations), sequence.n_frames
     c = config
-    pre = prep.pre
-    st = _State(sequence, 1, c)
-    out_p, out_R, out_v = np.empty((n, N, 3)), np.empty((n, N, 3, 3)), np.empty((n, N, 3))
-    out_sig, out_ba, out_bg = np.empty((n, N, 15)), np.empty((n, N, 3)), np.empty((n, N, 3))
-    n_upd, n_out, div_at = np.zeros((n, N), np.int64), np.zeros((n, N), np.int64), np.empty(n, np.int64)
-    # A calibration with non-finite values is diverged before it starts (frame 0; Eq. 51).
-    frozen = ~np.all(np.isfinite(np.concatenate(
-        [np.stack([cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px, cal.time_offset_s], 1),
-         cal.R_cam_imu.reshape(n, 9), cal.p_imu_cam_m], axis=1)), axis=1)
-    out_nis, out_ldS, out_nll = np.empty((n, N)), np.empty((n, N)), np.empty((n, N))
-    out_dof, out_slots = np.empty((n, N), np.int64), np.empty((n, N), np.int64)
-    out_used = np.zeros((n if record_used else 0, *prep.valid.shape), np.uint8)
-    args = (st.R[0], st.p[0], st.v[0], st.P0, st.ba[0], st.bg[0], _f64(sequence.gravity_world_mps2), pre.dR, pre.dv,
-            pre.dp, pre.S, pre.SS,
-            pre.Vbg, pre.Pbg, _f64(pre.T_s), _f64(pre.gyro_frame_radps), prep.Qd, prep.triplet_of_frame, prep.uv_px,
-            prep.valid, prep.stationary, *_cal_arrays(cal), _f64(cal.time_offset_s), frozen, float(c.pixel_sigma_px),
-            gain_limit, min_parallax_m, _MODES[c.outlier_rejection], c.ransac_threshold_sigma,
-            c.chi2_threshold, c.zero_velocity_sigma_mps, c.divergence_max_variance, c.divergence_max_speed_mps,
-            out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof, out_nll,
-            out_slots, out_used)
+    seq = _sequence_inputs(sequence, prep, c)
+    cal = _calibrations(calibrations)
+    settings = Settings(sigma_px=float(c.pixel_sigma_px), max_transfer_gain=gain_limit,
+                        min_parallax_m=float(min_parallax_m), mode=_MODES[c.outlier_rejection],
+                        ransac_threshold_sigma=float(c.ransac_threshold_sigma), chi2_threshold=c.chi2_threshold,
+                        zero_velocity_sigma_mps=float(c.zero_velocity_sigma_mps),
+                        max_variance=float(c.divergence_max_variance), max_speed_mps=float(c.divergence_max_speed_mps))
+    out = _outputs(n, N, (n if record_used else 0, *prep.valid.shape))
     # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
     # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per
     # filter, taken as threads come free, since filters that diverge early stop early: on a
@@ -251,13 +268,14 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # kernel tests for and drops; the floating-point warnings carry no information.
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
         if n_threads == 1:
-            _kernels.run_filters(0, n, *args)
+            _kernels.run_filters(0, n, seq, cal, settings, out)
         else:
             with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
-                jobs = [pool.submit(_kernels.run_filters, i, i + 1, *args) for i in range(n)]
+                jobs = [pool.submit(_kernels.run_filters, i, i + 1, seq, cal, settings, out) for i in range(n)]
                 for job in jobs:
                     job.result()
-    return FilterResult(out_p, out_R, out_v, div_at >= 0, div_at, n_upd, n_out, out_sig, out_ba, out_bg,
-                        out_nis, out_ldS, out_dof, out_nll, out_slots,
-                        used=out_used.astype(bool) if record_used else None,
+    o = out
+    return FilterResult(o.p, o.R, o.v, o.diverged_at >= 0, o.diverged_at, o.n_updates, o.n_outliers, o.sigma, o.ba,
+                        o.bg, o.nis, o.log_det_S, o.dof, o.nll, o.nll_slots,
+                        used=o.used.astype(bool) if record_used else None,
                         meta={"config": result_config})

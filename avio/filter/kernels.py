@@ -3,18 +3,19 @@
 update, the window slide and the divergence test; the trifocal update (measurement chain,
 outlier rejection, Kalman update, injection) is avio/filter/update.py. Equations: docs/model.md.
 
-Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column
-Jacobians, 16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work
-that numpy spread over ~200 calls per frame, whose overhead cost more than the arithmetic.
-numba with ``cache=True`` (compiled once, then loaded from avio/filter/__pycache__; NB numba's
-cache does not notice edits to functions of other modules called from a cached one: after
-editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or propagation.py, delete
-avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division by zero gives inf/NaN as
-numpy did; such features are dropped) and no fastmath, so every run gives the same bits. Each
-filter runs alone on one thread (:func:`run_filters` runs a contiguous range of the batch, one
-filter after the other, with one set of workspaces allocated once, so nothing is allocated per
-frame; it releases the GIL and avio/filter/batch.py runs one range per thread), so a batch gives the
-same numbers as single runs whatever the thread count.
+Why compiled: per frame and filter the work is ~16 features x 4 residuals with 12-column Jacobians,
+16 hypotheses of 1-point RANSAC and a few 12x12 and 27x27 products: small work that numpy spread
+over ~200 calls per frame, whose overhead cost more than the arithmetic. numba with non-aliasing
+array arguments and LLVM's SLP vectoriser (avio/filter/_simd.py: kernel_jit; the same bits, packed
+instructions where LLVM finds them) and ``cache=True`` (compiled once, then loaded from
+avio/filter/__pycache__; NB numba's cache does not notice edits to functions of other modules called
+from a cached one: after editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or
+propagation.py, delete avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division
+by zero gives inf/NaN as numpy did; such features are dropped) and no fastmath, so every run gives
+the same bits. Each filter runs alone on one thread (:func:`run_filters` runs a contiguous range of
+the batch, one filter after the other, with one set of workspaces allocated once, so nothing is
+allocated per frame; it releases the GIL and avio/filter/batch.py runs one range per thread), so a
+batch gives the same numbers as single runs whatever the thread count.
 
 Error state (27): ``[dp, dtheta, dv, db_a, db_g, dp1, dtheta1, dp2, dtheta2]`` (docs/model.md, Eq. 8).
 One filter: R (3, 3) ``R_world_imu``; p, v, ba, bg (3,); clones cp0, cp1 (3,), cR0, cR1 (3, 3)
@@ -25,16 +26,17 @@ leading n axis (clones (2, n, ...)).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from avio.filter._linalg import copy1, copy2, solve
+from avio.filter._simd import kernel_jit
+from avio.filter.interface import FilterState, UpdateWorkspaces, ZeroVelocityWorkspace
 from avio.filter.measurement import measure_workspace, shifted_pose
 from avio.filter.propagation import propagate_one, propagate_workspace
 from avio.filter.update import inject, noise_workspace, outlier_workspace, update, update_workspace
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def propagate_covariance(Pi, Phi, Qd, T, U):
     """Covariance prediction of one filter, in place: ``P <- F P F^T + Q`` with
     ``F = blockdiag(Phi, I_12)`` (clones have no dynamics), Phi (15, 15) the core error
@@ -67,7 +69,7 @@ def propagate_covariance(Pi, Phi, Qd, T, U):
             Pi[b, a] = T[a, b]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
     """Slide the window of one filter, in place: drop clone k-2 (cp (2, 3), cR (2, 3, 3)), move
     k-1 down, clone the current exposure-time pose (:func:`shifted_pose`); its covariance rows
@@ -108,7 +110,7 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
             Pi[21 + a, 21 + b] = acc
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
     """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
@@ -117,19 +119,19 @@ def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, 
     correlation (a "consider" update of the velocity and biases only was tried: 4.9 m instead
     of 1.4 m at the truth, seed 0).
     Allocates its scratch; the filter calls :func:`zero_velocity_update_into`."""
-    S, Z, dx, K = zero_velocity_workspace()
-    zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K)
+    zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, zero_velocity_workspace())
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def zero_velocity_workspace():
-    """Scratch arrays of :func:`zero_velocity_update_into`: S (3, 3), Z (3, 28), dx (27,), K (27, 27)."""
-    return np.empty((3, 3)), np.empty((3, 28)), np.empty(27), np.empty((27, 27))
+    """Scratch arrays of :func:`zero_velocity_update_into` (avio.filter.interface.ZeroVelocityWorkspace)."""
+    return ZeroVelocityWorkspace(S=np.empty((3, 3)), Z=np.empty((3, 28)), dx=np.empty(27), K=np.empty((27, 27)))
 
 
-@numba.njit(cache=True, error_model="numpy")
-def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, S, Z, dx, K):
-    """:func:`zero_velocity_update` with its scratch passed in (:func:`zero_velocity_workspace`)."""
+@kernel_jit
+def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, zws):
+    """:func:`zero_velocity_update` with its scratch zws passed in (:func:`zero_velocity_workspace`)."""
+    S, Z, dx, K = zws.S, zws.Z, zws.dx, zws.K
     # Eq. (49): S = P_vv + sigma^2 I and Z = S^-1 [P_v. | -v].
     for a in range(3):
         for b in range(3):
@@ -152,7 +154,7 @@ def zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps
     inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _bad(R, p, v, Pi, max_variance, max_speed):
     """Divergence test of one filter (docs/model.md, Eq. 51): non-finite state or covariance, a
     covariance diagonal above max_variance, or a speed above max_speed."""
@@ -172,36 +174,32 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg, T_s, gyro_frame, Qd,
-                triplet_of_frame, uv,
-                valid, stationary, fx, fy, cx, cy, Rci, pic, td, frozen, sigma_px, max_transfer_gain, min_parallax_m,
-                mode, ransac_threshold_sigma, chi2_threshold, zero_velocity_sigma_mps, max_variance, max_speed,
-                out_p, out_R, out_v, out_sig, out_ba, out_bg, n_upd, n_out, div_at, out_nis, out_ldS, out_dof,
-                out_nll, out_slots, out_used):
-    """All frames of the n filters (avio/filter/batch.py: run): each filter alone, one after the
+@kernel_jit(nogil=True)
+def run_filters(lo, hi, seq, cal, cfg, out):
+    """All frames of filters lo..hi-1 (avio/filter/batch.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order (docs/model.md,
     "One frame, in order"): prediction
     (:func:`avio.filter.propagation.propagate_one`, :func:`propagate_covariance`), the trifocal
     :func:`update` or, standing still, :func:`zero_velocity_update`, :func:`slide`, the
-    divergence test. A diverged filter (or one with ``frozen`` set: a non-finite calibration)
+    divergence test. A diverged filter (or one with ``cal.frozen`` set: a non-finite calibration)
     keeps the estimates of its last good frame, reports the initial sigmas and no updates
-    from then on. Writes the out_* arrays (n, N, ...), n_upd, n_out (n, N), div_at (n,) and the
-    innovation statistics of each frame's update (n, N): NIS, log det S, residual count, NLL
-    contribution and residual slots (:func:`update`; zero where no trifocal update ran);
-    out_used (n, n_triplets, F) uint8, or (0, ...) not to record them: which features each
-    triplet's update used (zero where none ran).
-    The biases start at ba0, bg0 (3,), the prior means.
-    This call runs filters lo..hi-1 (of the n of the out_* arrays), one after the other, with one
-    set of workspaces allocated here (nothing is allocated in the frame loop); it releases the
-    GIL, so avio/filter/batch.py runs contiguous ranges of a batch on several threads at once (each
-    filter on one thread, with the same operations as alone: the bits do not depend on the
+    from then on.
+
+    seq: avio.filter.interface.SequenceInputs (the biases start at seq.ba0, seq.bg0, the prior
+    means); cal: interface.Calibrations (row i for filter i); cfg: interface.Settings; out:
+    interface.Outputs, rows lo..hi-1 written: estimates, update counts, divergence frame and the
+    innovation statistics of each frame's update (NIS, log det S, residual count, NLL
+    contribution and residual slots; zero where no trifocal update ran); ``out.used`` (n, n_trip,
+    F) uint8, or (0, ...) not to record them: which features each triplet's update used.
+    One set of workspaces is allocated here (nothing is allocated in the frame loop); it releases
+    the GIL, so avio/filter/batch.py runs contiguous ranges of a batch on several threads at once
+    (each filter on one thread, with the same operations as alone: the bits do not depend on the
     batch or thread count).
     """
-    N, F = T_s.shape[0], uv.shape[1]
-    ws, mws, pws, nws = update_workspace(F), measure_workspace(), propagate_workspace(), noise_workspace(F)
-    ows = outlier_workspace(F)
-    zS, zZ, zdx, zK = zero_velocity_workspace()
+    N, F = seq.T_s.shape[0], seq.uv.shape[1]
+    uws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
+                           outliers=outlier_workspace(F))
+    pws, zws = propagate_workspace(), zero_velocity_workspace()
     omega = np.empty(3)
     R, p, v, ba, bg = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     cp, cR, P = np.empty((2, 3)), np.empty((2, 3, 3)), np.empty((27, 27))
@@ -209,75 +207,62 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
     E, T3, Tq, U = np.empty((3, 3)), np.empty((3, 3)), np.empty((15, 27)), np.empty((15, 15))
     R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
     ba_s, bg_s = np.empty(3), np.empty(3)
-    sig0 = np.sqrt(np.abs(np.diag(P0)[:15]))
-    record = out_used.shape[0] > 0
+    # The predicted state the updates correct: views, so made once.
+    x = FilterState(R=R_new, p=p_new, v=v_new, ba=ba, bg=bg, cp0=cp[0], cR0=cR[0], cp1=cp[1], cR1=cR[1], P=P)
+    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))
+    record = out.used.shape[0] > 0
     no_record = np.zeros(F, np.uint8)
+    zv_sigma = cfg.zero_velocity_sigma_mps
     for i in range(lo, hi):
-        copy2(R, R0)
-        copy1(p, p0)
-        copy1(v, v0)
-        copy2(P, P0)
-        copy1(ba, ba0)
-        copy1(bg, bg0)
+        copy2(R, seq.R0)
+        copy1(p, seq.p0)
+        copy1(v, seq.v0)
+        copy2(P, seq.P0)
+        copy1(ba, seq.ba0)
+        copy1(bg, seq.bg0)
         cp[:] = 0.0
         cR[:] = 0.0
         for a in range(3):
             cR[0, a, a] = 1.0
             cR[1, a, a] = 1.0
-        n_upd[i, :] = 0
-        n_out[i, :] = 0
-        out_nis[i, :] = 0.0
-        out_ldS[i, :] = 0.0
-        out_dof[i, :] = 0
-        out_nll[i, :] = 0.0
-        out_slots[i, :] = 0
-        if record:
-            out_used[i] = 0
-        div_at[i] = 0 if frozen[i] else -1
-        k_stop = 0 if frozen[i] else N
+        _clear_updates(out, i, record)
+        frozen = cal.frozen[i]
+        out.diverged_at[i] = 0 if frozen else -1
+        k_stop = 0 if frozen else N
         for k in range(k_stop):
             copy1(ba_s, ba)
             copy1(bg_s, bg)
             # Prediction: nominal state (Eqs. 14-16), covariance (Eq. 18).
             if k > 0:
-                propagate_one(R, v, p, ba, bg, g, dR[k], dv[k], dp[k], S[k], SS[k], Vbg[k], Pbg[k], T_s[k],
-                              R_new, v_new, p_new, Phi, pws)
-                propagate_covariance(P, Phi, Qd[k], Tq, U)
+                propagate_one(R, v, p, ba, bg, seq.g, seq.dR[k], seq.dv[k], seq.dp[k], seq.S[k], seq.SS[k],
+                              seq.Vbg[k], seq.Pbg[k], seq.T_s[k], R_new, v_new, p_new, Phi, pws)
+                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)
             else:
                 copy2(R_new, R)
                 copy1(v_new, v)
                 copy1(p_new, p)
             # omega of the time shift, Eq. (19): the gyro at the frame time minus the bias.
             for a in range(3):
-                omega[a] = gyro_frame[k, a] - bg[a]
-            j = triplet_of_frame[k]
+                omega[a] = seq.gyro_frame[k, a] - bg[a]
+            j = seq.triplet_of_frame[k]
             # Standing still (Eqs. 47-48): the zero-velocity update (Eq. 49) replaces the trifocal
             # update (Eqs. 20-46).
-            if k >= 2 and stationary[k] and zero_velocity_sigma_mps > 0:
-                zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P,
-                                          zero_velocity_sigma_mps, E, T3, zS, zZ, zdx, zK)
+            if k >= 2 and seq.stationary[k] and zv_sigma > 0:
+                zero_velocity_update_into(R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, zv_sigma, E, T3,
+                                          zws)
             elif k >= 2 and j >= 0:
-                decided = out_used[i, j] if record else no_record
-                used, rej, nis, ldS, dof, nll, slots = update(
-                    R_new, p_new, v_new, ba, bg, cp[0], cR[0], cp[1], cR[1], P, omega, td[i], fx[i], fy[i], cx[i],
-                    cy[i], Rci[i], pic[i], uv[j], valid[j], sigma_px, max_transfer_gain, min_parallax_m, mode,
-                    ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows, record, decided)
-                n_upd[i, k], n_out[i, k] = used, rej
-                out_nis[i, k], out_ldS[i, k], out_dof[i, k], out_nll[i, k], out_slots[i, k] = nis, ldS, dof, nll, slots
+                decided = out.used[i, j] if record else no_record
+                used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
+                                                              record, decided)
+                out.n_updates[i, k], out.n_outliers[i, k] = used, rej
+                out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof
+                out.nll[i, k], out.nll_slots[i, k] = nll, slots
             # Slide (Eq. 50).
-            slide(R_new, p_new, v_new, omega, td[i], cp, cR, P, R3, p3, Jsh, E, NR)
+            slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)
             # Divergence (Eq. 51): this frame's outputs are those of the last good one.
-            if _bad(R_new, p_new, v_new, P, max_variance, max_speed):
-                div_at[i] = k
-                n_upd[i, k] = 0
-                n_out[i, k] = 0
-                out_nis[i, k] = 0.0
-                out_ldS[i, k] = 0.0
-                out_dof[i, k] = 0
-                out_nll[i, k] = 0.0
-                out_slots[i, k] = 0
-                if record and j >= 0:
-                    out_used[i, j] = 0
+            if _bad(R_new, p_new, v_new, P, cfg.max_variance, cfg.max_speed_mps):
+                out.diverged_at[i] = k
+                _clear_update(out, i, k, j, record)
                 copy1(ba, ba_s)
                 copy1(bg, bg_s)
                 k_stop = k
@@ -285,18 +270,48 @@ def run_filters(lo, hi, R0, p0, v0, P0, ba0, bg0, g, dR, dv, dp, S, SS, Vbg, Pbg
             copy2(R, R_new)
             copy1(p, p_new)
             copy1(v, v_new)
-            copy1(out_p[i, k], p)
-            copy2(out_R[i, k], R)
-            copy1(out_v[i, k], v)
-            copy1(out_ba[i, k], ba)
-            copy1(out_bg[i, k], bg)
+            _write_frame(out, i, k, R, p, v, ba, bg)
             for a in range(15):
-                out_sig[i, k, a] = np.sqrt(abs(P[a, a]))
+                out.sigma[i, k, a] = np.sqrt(abs(P[a, a]))
         # From the divergence on: the last good state (biases included), the initial sigmas.
         for k in range(k_stop, N):
-            copy1(out_p[i, k], p)
-            copy2(out_R[i, k], R)
-            copy1(out_v[i, k], v)
-            copy1(out_ba[i, k], ba)
-            copy1(out_bg[i, k], bg)
-            copy1(out_sig[i, k], sig0)
+            _write_frame(out, i, k, R, p, v, ba, bg)
+            copy1(out.sigma[i, k], sig0)
+
+
+@kernel_jit
+def _write_frame(out, i, k, R, p, v, ba, bg):
+    """Filter i's estimates at frame k into out (interface.Outputs)."""
+    copy1(out.p[i, k], p)
+    copy2(out.R[i, k], R)
+    copy1(out.v[i, k], v)
+    copy1(out.ba[i, k], ba)
+    copy1(out.bg[i, k], bg)
+
+
+@kernel_jit
+def _clear_updates(out, i, record):
+    """Filter i's update statistics (and recorded decisions) zeroed before its run."""
+    out.n_updates[i, :] = 0
+    out.n_outliers[i, :] = 0
+    out.nis[i, :] = 0.0
+    out.log_det_S[i, :] = 0.0
+    out.dof[i, :] = 0
+    out.nll[i, :] = 0.0
+    out.nll_slots[i, :] = 0
+    if record:
+        out.used[i] = 0
+
+
+@kernel_jit
+def _clear_update(out, i, k, j, record):
+    """Frame k's update of filter i undone in the outputs (it diverged there; j its triplet)."""
+    out.n_updates[i, k] = 0
+    out.n_outliers[i, k] = 0
+    out.nis[i, k] = 0.0
+    out.log_det_S[i, k] = 0.0
+    out.dof[i, k] = 0
+    out.nll[i, k] = 0.0
+    out.nll_slots[i, k] = 0
+    if record and j >= 0:
+        out.used[i, j] = 0

@@ -33,28 +33,29 @@ Vectors are passed as 3-tuples (values, no allocation). Shapes: n filters, F fea
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from avio.errors import AvioError
 from avio.filter._linalg import matmul, so3_exp
+from avio.filter._simd import kernel_jit
+from avio.filter.interface import MeasureWorkspace
 
 
 class MeasurementError(AvioError):
     """Bad input to the measurement model; the message names what and where."""
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def rot(R, x):
     """R (3, 3) array applied to the 3-tuple x."""
     return (R[0, 0] * x[0] + R[0, 1] * x[1] + R[0, 2] * x[2],
@@ -62,7 +63,7 @@ def rot(R, x):
             R[2, 0] * x[0] + R[2, 1] * x[1] + R[2, 2] * x[2])
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def rot_t(R, x):
     """R^T applied to the 3-tuple x."""
     return (R[0, 0] * x[0] + R[1, 0] * x[1] + R[2, 0] * x[2],
@@ -70,13 +71,13 @@ def rot_t(R, x):
             R[0, 2] * x[0] + R[1, 2] * x[1] + R[2, 2] * x[2])
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def _axpy(a, x, b, y):
     """a x + b y for scalars a, b and 3-tuples x, y."""
     return (a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2])
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
     """Sampson distance (pixels) of ``xb^T R_ab^T [t]x xa = 0`` and its gradient, one feature.
 
@@ -117,7 +118,7 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
     return r, g_psi, g_t, w, g_pix
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def _transfer_grads(y, R12, l_n, w12, x1, x20, x21, a, ia):
     # d(y·lam)/d psi12 and / d t12 (lam = R12 l_n; the closed form of docs/model.md Eq. 28,
     # differentiated: Eq. 33).
@@ -127,7 +128,7 @@ def _transfer_grads(y, R12, l_n, w12, x1, x20, x21, a, ia):
     return (g1[0] + g2[0], g1[1] + g2[1], g1[2] + g2[2]), cross(x1, rot(R12, z))
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
     """Point transfer 1→3 (pixels) of one feature; writes its Jacobian w.r.t.
     ``[psi12, dt12, psi13, dt13]`` into J (2, 12) and returns ``(u, v)``.
@@ -170,7 +171,7 @@ def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
     return fx * X[0] * iX2 + cx, fy * X[1] * iX2 + cy
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy):
     """(du, dv) pixels of the transfer for a perturbation dx1 of x1 and dl of the line l_n."""
     dlam = rot(R12, dl)
@@ -182,7 +183,7 @@ def _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy):
     return (fx * (dX[0] * X[2] - X[0] * dX[2]) * iX2 * iX2, fy * (dX[1] * X[2] - X[1] * dX[2]) * iX2 * iX2)
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@kernel_jit(inline="always")
 def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
     """d(transfer pixel (u, v)) / d(u1, v1, u2, v2) into G (2, 4): how the transferred point
     moves with the measured points of images 1 and 2 (through x1, the epipolar line w12 of x1
@@ -208,7 +209,7 @@ def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
         G[0, 2 + c], G[1, 2 + c] = du, dv
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G, pair23=True):
     """Innovations ``r = z - h`` (4,) pixels, Jacobian ``J = dh/d[psi12, dt12, psi13, dt13]``
     (4, 12) of one feature (written into r, J), so that ``dr = -J d``, the Kalman convention,
@@ -269,7 +270,7 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
     r[2], r[3] = uv[2, 0] - u, uv[2, 1] - v
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
     """Exposure-time IMU pose of one filter, ``(p + v td, R exp(w td))``, into p3 (3,), R3 (3, 3),
     and its (6, 15) Jacobian J w.r.t. the core error ``[dp, dtheta, dv, db_a, db_g]``
@@ -287,16 +288,17 @@ def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def measure_workspace():
-    """Scratch arrays of :func:`measure` (allocated once per batch, not per filter)."""
-    return (np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((3, 3, 3)), np.empty((3, 3)),
-            np.zeros((18, 27)), np.empty((6, 6)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)),
-            np.zeros((12, 18)), np.empty((3, 3)))
+    """Scratch arrays of :func:`measure` (allocated once per batch, not per filter;
+    avio.filter.interface.MeasureWorkspace)."""
+    return MeasureWorkspace(R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), Rc=np.empty((3, 3, 3)),
+                            pc=np.empty((3, 3)), G=np.zeros((18, 27)), M=np.empty((6, 6)), R12=np.empty((3, 3)),
+                            R13=np.empty((3, 3)), R23=np.empty((3, 3)), D=np.zeros((12, 18)), E=np.empty((3, 3)))
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
@@ -314,7 +316,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
-    R3, p3, Jsh, Rc, pc, G, M, R12, R13, R23, D, E = ws
+    R3, p3, Jsh, Rc, pc, G, M, R12, R13 = ws.R3, ws.p3, ws.Jsh, ws.Rc, ws.pc, ws.G, ws.M, ws.R12, ws.R13
+    R23, D, E = ws.R23, ws.D, ws.E
     # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose

@@ -27,11 +27,12 @@ the bits are those of the feature-by-feature code it replaced (tests/avio/filter
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from avio.filter._simd import kernel_jit
 
-@numba.njit(cache=True, error_model="numpy")
+
+@kernel_jit
 def _cholesky(S, L):
     """Lower Cholesky factor L of the SPD matrix S (only its lower triangle is read); a pivot
     below 1e-300 is clamped, so a zero row gives zeros rather than NaN."""
@@ -51,7 +52,7 @@ def _cholesky(S, L):
             L[i, j] = 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def cholesky_lanes(S, L):
     """:func:`_cholesky` of F matrices at once: S, L (m, m, F), the matrix of feature f in
     ``[:, :, f]`` (same operations per matrix; the upper triangle of L is not written)."""
@@ -70,7 +71,7 @@ def cholesky_lanes(S, L):
                 L[i, j, f] = s * (1.0 / L[j, j, f])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def log_det_lanes(L, out):
     """out (F,) = log det of each L L^T, ``2 sum_i log L[i, i, f]``, from Cholesky factors L
     (m, m, F) (:func:`cholesky_lanes`)."""
@@ -84,7 +85,7 @@ def log_det_lanes(L, out):
         out[f] *= 2.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def forward_lanes(L, b, y):
     """y (m, F) = L^-1 b for each feature: forward substitution with lower factors L (m, m, F)."""
     m, F = b.shape
@@ -96,14 +97,14 @@ def forward_lanes(L, b, y):
             y[i, f] = s / L[i, i, f]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def innovations_workspace(m, d, F):
     """Scratch arrays of :func:`feature_innovations_into` (m residuals per feature, d parameters,
     F features): Lp (d, d), S (m, m, F), L (m, m, F), y (m, F); allocated once per run."""
     return np.empty((d, d)), np.empty((m, m, F)), np.empty((m, m, F)), np.empty((m, F))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def feature_innovations(r, H, P, Rm, B, z, logdet):
     """Per-feature ``B_j = H_j L`` (m, d, F) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``),
     ``z_j = S_j^-1 r_j`` (m, F) with ``S_j = H_j P H_j^T + R_j = B_j B_j^T + R_j`` and
@@ -117,7 +118,7 @@ def feature_innovations(r, H, P, Rm, B, z, logdet):
     feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
     """:func:`feature_innovations` with its scratch passed in (:func:`innovations_workspace`)."""
     m, d, F = H.shape
@@ -151,7 +152,7 @@ def feature_innovations_into(r, H, P, Rm, B, z, logdet, Lp, S, L, y):
             z[i, f] = s / L[i, i, f]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def mahalanobis_gate(r, z, valid, chi2_threshold, out):
     """out (F,) True where the feature passes ``r^T S^-1 r <= chi2_threshold`` (and is valid);
     z from :func:`feature_innovations`. docs/model.md, Eq. 39."""
@@ -163,14 +164,14 @@ def mahalanobis_gate(r, z, valid, chi2_threshold, out):
         out[f] = valid[f] and d2 <= chi2_threshold
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def ransac_workspace(F, m, d):
     """Scratch arrays of :func:`one_point_ransac_into` for F features of m residuals and d
     parameters: Y (d, F), moved (F m, F), inlier (F, F) bool, count (F,) int64."""
     return np.empty((d, F)), np.empty((F * m, F)), np.empty((F, F), np.bool_), np.empty(F, np.int64)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
     B, z from :func:`feature_innovations`; sd (m, F) the residuals' measurement standard
@@ -181,7 +182,7 @@ def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count):
     """:func:`one_point_ransac` with its scratch passed in (:func:`ransac_workspace`)."""
     m, d, F = B.shape

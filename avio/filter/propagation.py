@@ -21,11 +21,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from avio.errors import AvioError
 from avio.filter._linalg import matmul, so3_exp
+from avio.filter._simd import kernel_jit
+from avio.filter.interface import PropagateWorkspace
 
 
 class ImuPropagationError(AvioError):
@@ -188,20 +189,20 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     )
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def propagate_workspace():
-    """Scratch arrays of :func:`propagate_one`."""
-    return (np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3),
-            np.empty(3))
+    """Scratch arrays of :func:`propagate_one` (avio.filter.interface.PropagateWorkspace)."""
+    return PropagateWorkspace(E=np.empty((3, 3)), RdR=np.empty((3, 3)), M=np.empty((3, 3)), dv=np.empty(3),
+                              dp=np.empty(3), sb=np.empty(3), Delta=np.empty(3), Pi=np.empty(3))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def propagate_one(R, v, p, b_a, b_g, g_world, dR, dv0, dp0, S, SS, Vbg, Pbg, T, R_new, v_new, p_new, Phi, ws):
     """One filter over one preintegrated interval (rows k of :class:`Preintegrated`: dR, dv0,
     dp0, S, SS, Vbg, Pbg, T): writes R_new (3, 3), v_new, p_new (3,) and the (15, 15) error
     transition Phi (ws: :func:`propagate_workspace`). Batched in tests/avio/filter/imu_reference.py.
     docs/model.md: bias correction Eq. 14, nominal prediction Eq. 15, Phi Eq. 16."""
-    E, RdR, M, dv, dp, sb, Delta, Pi = ws
+    E, RdR, M, dv, dp, sb, Delta, Pi = ws.E, ws.RdR, ws.M, ws.dv, ws.dp, ws.sb, ws.Delta, ws.Pi
     # Eq. (14): first-order bias corrections of the increments.
     for i in range(3):
         dv[i] = dv0[i] - (S[i, 0] * b_a[0] + S[i, 1] * b_a[1] + S[i, 2] * b_a[2]) \

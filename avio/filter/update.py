@@ -8,10 +8,11 @@ allocated once per filter range."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from avio.filter._linalg import copy2, matmul, so3_exp, solve
+from avio.filter._simd import kernel_jit
+from avio.filter.interface import NoiseWorkspace, OutlierWorkspace, UpdateWorkspace
 from avio.filter.measurement import measure
 from avio.filter.outliers import (
     cholesky_lanes,
@@ -25,7 +26,7 @@ from avio.filter.outliers import (
 )
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _rotate(Rm, dtheta, E, T):
     so3_exp(dtheta[0], dtheta[1], dtheta[2], E)
     matmul(Rm, E, T)
@@ -33,7 +34,7 @@ def _rotate(Rm, dtheta, E, T):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
     """Add the error-state correction dx (27,) to one filter's nominal state (local rotation
     errors, ``R <- R exp(dtheta)``), in place (E, T (3, 3): scratch); docs/model.md, Eq. 8."""
@@ -50,18 +51,21 @@ def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def update_workspace(F):
-    """Scratch arrays of :func:`update` for F features (allocated once per run)."""
+    """Scratch arrays of :func:`update` for F features (allocated once per run;
+    avio.filter.interface.UpdateWorkspace)."""
     d = 12
-    return (np.empty((4, F)), np.empty((4, d, F)), np.empty((d, 27)), np.empty((27, d)), np.empty((d, d)),
-            np.empty(3), np.empty(3), np.empty((M, d, F)), np.empty((M, F)), np.empty(F, np.bool_),
-            np.empty(F, np.bool_), np.empty(F, np.bool_), np.empty((d, d)), np.empty((d, d)), np.empty((d, d + 1)),
-            np.empty((27, d)), np.empty(27), np.empty((d, 27)), np.empty((3, 3)), np.empty((3, 3)))
+    return UpdateWorkspace(
+        r4=np.empty((4, F)), J4=np.empty((4, d, F)), C=np.empty((d, 27)), PCt=np.empty((27, d)), Sig=np.empty((d, d)),
+        t12=np.empty(3), t13=np.empty(3), HP=np.empty((M, d, F)), z=np.empty((M, F)), ok=np.empty(F, np.bool_),
+        inl=np.empty(F, np.bool_), gate=np.empty(F, np.bool_), A=np.empty((d, d)), Mx=np.empty((d, d)),
+        X=np.empty((d, d + 1)), K=np.empty((27, d)), dx=np.empty(27), CP=np.empty((d, 27)), E3=np.empty((3, 3)),
+        T3=np.empty((3, 3)))
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
     pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
@@ -70,19 +74,20 @@ def noise_workspace(F):
     (M, M, F), standard deviations (M, F), log det R_f and log det S_f (F,), the whitened
     residuals and Jacobians (M, F), (M, 12, F), one feature's whitened Jacobian (M, 12) and a
     (12,) vector."""
-    return (np.empty((4, 6, F)), np.empty((M, F)), np.empty((M, 12, F)), np.empty((M, 6, F)),
-            np.empty((M, M, F)), np.empty((M, F)), np.zeros((M, M, F)), np.empty(F), np.empty(F), np.empty((M, F)),
-            np.empty((M, 12, F)), np.empty((M, 12)), np.empty(12))
+    return NoiseWorkspace(G4=np.empty((4, 6, F)), r=np.empty((M, F)), J=np.empty((M, 12, F)), Gp=np.empty((M, 6, F)),
+                          Rm=np.empty((M, M, F)), sd=np.empty((M, F)), Lm=np.zeros((M, M, F)), ldR=np.empty(F),
+                          ldS=np.empty(F), rw=np.empty((M, F)), Jw=np.empty((M, 12, F)), jw_f=np.empty((M, 12)),
+                          beta=np.empty(12))
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
     (avio.filter.outliers.innovations_workspace, then avio.filter.outliers.ransac_workspace)."""
     Lp, S, L, y = innovations_workspace(M, 12, F)
     Y, moved, inlier, count = ransac_workspace(F, M, 12)
-    return Lp, S, L, y, Y, moved, inlier, count
+    return OutlierWorkspace(Lp=Lp, S=S, L=L, y=y, Y=Y, moved=moved, inlier=inlier, count=count)
 
 
 
@@ -113,7 +118,7 @@ NOISE_FLOOR = 0.01
 
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel_jit
 def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     """R_f = sigma^2 G G^T + (NOISE_FLOOR sigma)^2 I of every feature (G (M, 6, F) the used
     residuals' pixel sensitivities), its Cholesky factor, the standard deviations and
@@ -138,11 +143,12 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 
 
-@numba.njit(cache=True, error_model="numpy")
-def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, Rci, pic, uv, valid, sigma_px,
-           max_transfer_gain, min_parallax_m, mode, ransac_threshold_sigma, chi2_threshold, ws, mws, nws, ows,
-           record, decided):
-    """One trifocal update of one filter (state and covariance Pi (27, 27) in place).
+@kernel_jit
+def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
+    """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
+    covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
+    settings ``cfg`` (interface.Settings), the features uv (F, 3, 2) px and valid (F,) of the
+    frame's triplet, omega (3,) rad/s the gyro minus the bias at the frame time.
 
     Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
     baseline or with a degenerate transfer: not used), each feature's measurement covariance
@@ -162,20 +168,26 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     rejected, the update's NIS, log det S and residual count, its NLL contribution with the
     capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
     feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
-    ws: :func:`update_workspace`, mws: :func:`measure_workspace`, nws: :func:`noise_workspace`,
-    ows: :func:`outlier_workspace` (nothing is allocated here).
+    ws: interface.UpdateWorkspaces of :func:`update_workspace`, measure_workspace,
+    :func:`noise_workspace` and :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
     avio/filter/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
     Equations (docs/model.md): residuals and Jacobians Eqs. 19-33, noise Eqs. 34-36, outliers
     Eqs. 37-39, update Eqs. 40-43, statistics Eqs. 44-46.
     """
     F, d = uv.shape[0], 12
-    r4, J4, C, PCt, Sig, t12, t13, HP, z, ok, inl, gate, A, Mx, X, K, dx, CP, E3, T3 = ws
-    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS, rw, Jw, jw_f, beta = nws
-    oLp, oS, oL, oy, oY, omoved, oinlier, ocount = ows
+    u_, n_, o_ = ws.update, ws.noise, ws.outliers
+    r4, J4, C, PCt, Sig, t12, t13, HP, z = u_.r4, u_.J4, u_.C, u_.PCt, u_.Sig, u_.t12, u_.t13, u_.HP, u_.z
+    ok, inl, gate, A, Mx, X, K, dx, CP = u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X, u_.K, u_.dx, u_.CP
+    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
+    rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
+    sigma_px, max_transfer_gain, min_parallax_m = cfg.sigma_px, cfg.max_transfer_gain, cfg.min_parallax_m
+    mode, chi2_threshold = cfg.mode, cfg.chi2_threshold
+    Pi = x.P
     # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
     # G4 and the chain C (H = J C).
-    measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r4, J4, G4, C, t12, t13, mws, False)
+    measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
+            cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv, r4, J4, G4, C, t12, t13, ws.measure, False)
     # Eq. (36): without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
@@ -238,7 +250,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
     for f in range(F):
         inl[f] = ok[f]
     # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
-    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, oLp, oS, oL, oy)
+    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, o_.Lp, o_.S, o_.L, o_.y)
     # The score (avio/objectives.py; Eq. 46): every valid feature's own innovation likelihood, its
     # squared Mahalanobis distance capped at the gate, whatever the update does with it.
     nll = 0.0
@@ -253,7 +265,7 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
                 nll += 0.5 * (chi2_threshold + M * log_s2 + M * LOG_2PI)
     # Outlier rejection: 1-point RANSAC (Eq. 38), then the chi-square gate (Eq. 39).
     if mode == MODE_RANSAC or mode == MODE_BOTH:
-        one_point_ransac_into(r, HP, z, sd, ok, ransac_threshold_sigma, inl, oY, omoved, oinlier, ocount)
+        one_point_ransac_into(r, HP, z, sd, ok, cfg.ransac_threshold_sigma, inl, o_.Y, o_.moved, o_.inlier, o_.count)
     if mode == MODE_GATE or mode == MODE_BOTH:
         mahalanobis_gate(r, z, inl, chi2_threshold, gate)
         for f in range(F):
@@ -340,5 +352,5 @@ def update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, omega, td, fx, fy, cx, cy, R
         for c in range(a):
             Pi[c, a] = Pi[a, c]
     # Eq. (8): the injection.
-    inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E3, T3)
+    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)
     return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid

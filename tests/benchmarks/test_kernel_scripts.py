@@ -55,9 +55,17 @@ def test_the_base_package_imports_only_itself(tmp_path, monkeypatch, load_script
 
 def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, capsys):
     """benchmarks/bench_layout.py's variants compute what the kernel computes (else its ratios
-    compare different work)."""
+    compare different work), and the lanes compiled with the SIMD switches are packed (with AVX)."""
+    from llvmlite import binding as llvm
+
     layout = load_script("bench_layout")
     layout.main(["--lanes", "4", "--runtime-lanes", "8", "--repeats", "1", "--calls", "16"])
-    lines = [ln for ln in capsys.readouterr().out.splitlines() if "us/filter" in ln]
-    assert [ln.split()[0] for ln in lines] == ["committed", "rows", "lanes", "lanes"]
-    assert all("bit-identical=True" in ln for ln in lines), lines
+    lines = {ln.split(" us/filter")[0].rsplit(None, 1)[0].strip(): ln
+             for ln in capsys.readouterr().out.splitlines() if "us/filter" in ln}
+    assert list(lines) == ["committed", "rows", "committed +noalias+SLP", "lanes 4", "lanes 4 +noalias+SLP",
+                           "lanes 8 (run-time)"]
+    assert all("bit-identical=True" in ln for ln in lines.values()), lines
+    counts = {name: [int(w) for w in re.findall(r"(\d+) (?:scalar|packed)", ln)] for name, ln in lines.items()}
+    assert counts["lanes 4"][1] == 0 and counts["lanes 4"][0] > 0  # numba's defaults: scalar
+    if llvm.get_host_cpu_features().get("avx", False):
+        assert counts["lanes 4 +noalias+SLP"][0] == 0 and counts["lanes 4 +noalias+SLP"][1] > 0, counts

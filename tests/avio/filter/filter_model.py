@@ -8,7 +8,7 @@ import numba
 import numpy as np
 
 from avio.calibration import Calibration
-from avio.filter.batch import _cal_arrays, _f64, _State
+from avio.filter.batch import _calibrations, _f64, _State
 from avio.filter.measurement import MeasurementError, feature_residuals, measure, measure_workspace, rot_t
 from avio.filter.update import inject
 
@@ -46,7 +46,7 @@ def measurement_model(st: _State, cal: Calibration, uv_px, omega, td):
     errors of the triplet and the map C (n, 12, 27) from the error state to those, so that the
     measurement Jacobian is ``H = J C`` (``dr = -H dx``); also t12, t13 (n, 3)."""
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        return measure_all(st.R, st.p, st.v, st.cp, st.cR, _f64(omega), _f64(td), *_cal_arrays(cal), _f64(uv_px))
+        return measure_all(st.R, st.p, st.v, st.cp, st.cR, _f64(omega), _f64(td), *_calibrations(cal)[:6], _f64(uv_px))
 
 
 def inject_correction(st: _State, dx) -> None:

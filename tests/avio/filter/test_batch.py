@@ -1,13 +1,11 @@
 """The threaded filter kernel (avio/filter/kernels.py: run_filters, a batch split over threads) gives
-the same bits whatever the batch size and thread count, and the same bits as the serial kernel
-it replaced (commit 958a2e6, kept verbatim in tests/avio/filter/reference_kernel_958a2e6.py): every
-FilterResult array, divergence decisions and innovation statistics included."""
+the same bits whatever the batch size and thread count: every FilterResult array, divergence
+decisions and innovation statistics included (the same bits as a commit of the git history:
+test_against_history.py)."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -92,53 +90,6 @@ def test_set_threads_refuses_bad_counts():
             set_threads(bad)
     assert set_threads(10**6) == os.cpu_count()  # more threads than cores only costs
     assert set_threads(None) == avio_filter.default_threads()
-
-
-def _reference_kernel():
-    path = Path(__file__).with_name("reference_kernel_958a2e6.py")
-    spec = importlib.util.spec_from_file_location("reference_kernel_958a2e6", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def _reference_run(monkeypatch, seq, cal, cfg, prep):
-    """avio.filter.run with the serial reference kernel (all filters in one call) in place of
-    the threaded one (filters lo..hi-1 per call)."""
-    ref = _reference_kernel()
-    set_threads(1)
-    with monkeypatch.context() as m:
-        m.setattr(avio_filter._kernels, "run_filters", lambda lo, hi, *args: ref.run_filters(*args[:-1]))  # its signature predates out_used
-        return run(seq, cal, cfg, prep)
-
-
-@pytest.mark.slow
-def test_same_bits_as_the_serial_reference_kernel_on_the_circle(monkeypatch):
-    seq = make_circle_sequence(60, seed=1, pixel_noise_px=0.5, outlier_fraction=0.1)
-    cal = _candidates(seq.truth_calibration, 8, seed=7)
-    for mode in ("both", "none", "ransac", "mahalanobis"):
-        cfg = FilterConfig(outlier_rejection=mode, divergence_max_speed_mps=7.02)
-        prep = prepare(seq, cfg)
-        want = _reference_run(monkeypatch, seq, cal, cfg, prep)
-        set_threads(2)
-        _assert_same_bits(run(seq, cal, cfg, prep), want, f"circle, {mode}")
-
-
-@pytest.mark.slow
-@pytest.mark.data
-def test_same_bits_as_the_serial_reference_kernel_on_kitti00(monkeypatch, shared_data):
-    from avio.datasets.kitti00 import load_kitti00
-
-    seq = load_kitti00(shared_data / "kitti00", 15, 796, seed=0)
-    cal = _candidates(seq.truth_calibration, 6, seed=7)
-    # The default thresholds and a variance limit that makes every filter diverge mid-run.
-    for cfg in (FilterConfig(), FilterConfig(divergence_max_variance=25.0)):
-        prep = prepare(seq, cfg)
-        want = _reference_run(monkeypatch, seq, cal, cfg, prep)
-        set_threads(2)
-        got = run(seq, cal, cfg, prep)
-        _assert_same_bits(got, want, f"kitti00 15-796, {cfg.divergence_max_variance}")
-    assert np.all(got.diverged_at_frame > 0) | np.isnan(cal.fx_px).any()
 
 
 def test_a_cold_compile_is_announced_with_a_heartbeat_and_its_duration(monkeypatch, capsys):

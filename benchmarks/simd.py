@@ -1,0 +1,24 @@
+"""The two numba switches that let LLVM pack a lock-step kernel into SIMD instructions, and the
+count of packed and scalar FP64 instructions in a compiled function (issue 30). They live in
+avio/filter/_simd.py, where the filter's kernel is compiled with them (its docstring says how
+numba 0.68.1 is made to use them); re-exported here for the benchmarks.
+
+The toy check (tests/benchmarks/test_simd.py): a 4-lane multiply-add with constant bounds
+compiles to 4 ``vmulsd`` without the switches, with either alone, and to one packed ``vmulpd``
+with both.
+"""
+
+from __future__ import annotations
+
+import numba
+
+from avio.filter._simd import NoAliasCompiler, PackedCompiler, fp_counts, kernel_jit, slp_vectorize
+
+__all__ = ["NoAliasCompiler", "PackedCompiler", "fp_counts", "kernel_jit", "njit_packed", "slp_vectorize"]
+
+
+def njit_packed(func=None, **options):
+    """``numba.njit`` with non-aliasing arguments; compile it inside :func:`slp_vectorize` (the
+    first call, or ``.compile(signature)``) for the SLP vectoriser to run on it."""
+    options.setdefault("pipeline_class", NoAliasCompiler)
+    return numba.njit(**options) if func is None else numba.njit(**options)(func)
