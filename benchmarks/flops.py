@@ -40,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 _COUNT: dict[str, int] = {}
 _CALLS: dict[str, int] = {}
+_ALLOCATED = [0]  # bytes the kernel allocated (np.empty, np.zeros) in the counted run
 _STACK: list[str] = []
 
 #: The kernel's functions that open a phase (innermost wins).
@@ -194,15 +195,22 @@ class _Numpy(types.SimpleNamespace):
 
     @staticmethod
     def _floats(shape, fill):
+        _ALLOCATED[0] += 8 * int(np.prod(shape))
         out = np.empty(shape, dtype=object)
         out.fill(Flop(fill))
         return out
 
     def empty(self, shape, dtype=float):
-        return self._floats(shape, 0.0) if np.dtype(dtype) == np.float64 else np.empty(shape, dtype)
+        return self._floats(shape, 0.0) if np.dtype(dtype) == np.float64 else self._other(np.empty, shape, dtype)
 
     def zeros(self, shape, dtype=float):
-        return self._floats(shape, 0.0) if np.dtype(dtype) == np.float64 else np.zeros(shape, dtype)
+        return self._floats(shape, 0.0) if np.dtype(dtype) == np.float64 else self._other(np.zeros, shape, dtype)
+
+    @staticmethod
+    def _other(make, shape, dtype):
+        out = make(shape, dtype)
+        _ALLOCATED[0] += out.nbytes
+        return out
 
     @staticmethod
     def sqrt(x):
@@ -254,7 +262,9 @@ def _as_flops(x):
 def count_run(sequence, calibration, config=None) -> dict[str, int]:
     """FLOPs per phase of one filter (``calibration``, a batch of one) over ``sequence``, counted
     from the kernel's code (module docstring); also ``"update frames"``: the frames with a
-    trifocal update, and ``"frames"``. The calls of each phase are in ``_CALLS`` afterwards."""
+    trifocal update, ``"frames"``, and ``"workspace bytes"``: what the kernel allocated for the
+    filter (its workspaces, once per call of run_filters; float64 counted as 8 bytes). The calls
+    of each phase are in ``_CALLS`` afterwards."""
     return twin_run(sequence, calibration, config)[0]
 
 
@@ -286,11 +296,13 @@ def twin_run(sequence, calibration, config=None) -> tuple[dict[str, int], dict]:
         set_threads(threads)
     _COUNT.clear()
     _CALLS.clear()
+    _ALLOCATED[0] = 0
     args = [_as_flops(a) for a in args]
     _twin(kernels.run_filters, {})(0, 1, *args)
     out = dict(_COUNT)
     out["update frames"] = _CALLS.get("update, selection", 0)
     out["frames"] = sequence.n_frames
+    out["workspace bytes"] = _ALLOCATED[0]
     names = list(inspect.signature(kernels.run_filters.py_func).parameters)[2:]
     return out, dict(zip(names, args, strict=True))
 
@@ -316,7 +328,8 @@ def main(argv=None) -> None:
             if phase in model:
                 per_call = n / (calls.get(phase) or calls["update, selection"])  # steps of update's body: per update
                 print(f"  {phase:24s} {per_call:10.1f} per call   constants: {model[phase]}")
-        print(f"  one update frame: {sum(model.values())} FLOPs by the constants")
+        print(f"  one update frame: {sum(model.values())} FLOPs by the constants; workspace of one filter "
+              f"{counted['workspace bytes']} bytes")
 
 
 if __name__ == "__main__":
