@@ -49,6 +49,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+from flops import per_evaluation, rate_line
 
 from avio.calibration import Calibration
 from avio.filter.batch import run, set_threads
@@ -204,6 +207,8 @@ def speed(args, config: FilterConfig) -> None:
     pool = _candidates(seq.truth_calibration, max(max(args.batches), SAME_WORK), seed=0)
     print(f"every batch size up to {SAME_WORK} evaluates the same {SAME_WORK} calibrations (larger ones the "
           f"first n of the same draw)", flush=True)
+    flop = per_evaluation(run(seq, pool[:SAME_WORK], config, prep), config.max_update_features)
+    print(f"{flop / 1e6:.1f} MFLOP per evaluation (benchmarks/flops.py: counted from the code)", flush=True)
     work = {n: max(n, SAME_WORK) for n in args.batches}
     batches = {n: [pool[i:min(i + n, work[n])] for i in range(0, work[n], n)] for n in args.batches}
     walls = {(t, n): [] for n in args.batches for t in args.threads}
@@ -223,7 +228,7 @@ def speed(args, config: FilterConfig) -> None:
             per_eval[n_threads, n] = np.array(walls[n_threads, n])
             print(f"threads {n_threads} batch {n:4d}: {1 / wall:7.1f} evaluations/s ({1e3 * wall:6.2f} ms "
                   f"per evaluation, CPU {1e3 * cpu:6.2f} ms; median of {args.repeats}, {len(batches[n])} "
-                  f"batch(es) of {work[n]} evaluations)", flush=True)
+                  f"batch(es) of {work[n]} evaluations); {rate_line(flop, cpu)}", flush=True)
     print(f"  load average {os.getloadavg()[0]:.2f}", flush=True)
     set_threads(None)
     t_lo, t_hi = min(args.threads), max(args.threads)

@@ -157,3 +157,23 @@ def test_the_guard_sees_a_change_of_one_ulp_in_one_input(ref):
     moved.fx_px[0] = np.nextafter(moved.fx_px[0], np.inf)
     with pytest.raises(pytest.fail.Exception, match="differs from"):
         _assert_same_bits(run(seq, moved, FilterConfig()), want, slice(None), "one ulp")
+
+
+def test_the_reference_imports_only_itself(ref):
+    """Frozen means frozen: no module of the copy imports the live avio."""
+    import re
+    from pathlib import Path
+
+    pkg = Path(ref.__file__).parent
+    sources = {p.relative_to(pkg).as_posix(): p.read_text() for p in pkg.rglob("*.py")}
+    assert "filter/kernels.py" in sources and "filter/update.py" in sources
+    for name, text in sources.items():
+        assert not re.search(r"^\s*(from|import) avio\b", text, re.MULTILINE), name
+    assert importlib.import_module(f"{ref.__name__}.filter.kernels").__file__.startswith(str(pkg))
+
+
+def test_a_commit_missing_from_the_history_is_a_reason_to_skip():
+    if git_reference.unavailable("HEAD") is not None:
+        pytest.skip(git_reference.unavailable("HEAD"))
+    why = git_reference.unavailable("0" * 40)
+    assert why is not None and "not in this checkout's history" in why and "shallow" in why
