@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from bench.problems import ProblemError, get
 
@@ -17,8 +16,10 @@ ROOT = Path(__file__).resolve().parents[3]
 YAML = ROOT / "bench" / "conf" / "problem" / "euroc.yaml"
 
 
-def _yaml_params() -> dict:
-    return yaml.safe_load(YAML.read_text())["params"]
+def _yaml_params(instance: int = 0) -> dict:
+    from bench.problems._make import problem_config
+
+    return problem_config("euroc", instance=instance)["params"]
 
 
 def test_python_defaults_are_the_yaml_defaults():
