@@ -10,9 +10,10 @@ importing ``bench.report``. Settings (docs/guide/verdicts.md):
 - ``test``: the post-hoc test, one of :data:`TESTS` (``bench.report.verdict.POSTHOCS``).
 - ``family``: ``leader`` (each optimiser against the leader, k - 1 tests) or ``all`` (every pair).
 - ``alpha``: the family-wise error rate, in (0, 1).
-- ``rope``: regions of practical equivalence, each a number >= 0, named ``default`` (the
-  objective of every problem not named), a problem name (its objective, in the objective's
-  units) or a calibration error of :data:`METRIC_ROPES` (in that error's units).
+- ``rope``: the region of practical equivalence of the objective, a number >= 0 in the
+  objective's units; or a section of them, each named ``default`` (the objective of every
+  problem not named), a problem name (its objective) or a calibration error of
+  :data:`METRIC_ROPES` (in that error's units).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class VerdictSettings:
     test: str = "wilcoxon"
     family: str = "leader"
     alpha: float = 0.05
-    rope: Mapping[str, float] = field(default_factory=lambda: {"default": 0.0})
+    rope: Mapping[str, float] = field(default_factory=lambda: {"default": 0.0})  # a number is {"default": it}
 
     def objective_rope(self, problem: str) -> float:
         """The ROPE of ``problem``'s objective (its own entry, else ``default``, else 0), objective units."""
@@ -82,9 +83,12 @@ def _number(value) -> bool:
 
 
 def _check_rope(rope, problems: set[str] | None) -> dict[str, float]:
+    scalar = isinstance(rope, (int, float)) and not isinstance(rope, bool)
+    if scalar:
+        rope = {"default": rope}  # one value for every problem's objective
     if not isinstance(rope, Mapping):
-        raise VerdictSettingsError(f"verdict.rope must be a section {{name: value >= 0}} (default, a problem, or one "
-                                   f"of {', '.join(METRIC_ROPES)}), got {rope!r}")
+        raise VerdictSettingsError(f"verdict.rope must be a number >= 0 or a section {{name: value >= 0}} (default, a "
+                                   f"problem, or one of {', '.join(METRIC_ROPES)}), got {rope!r}")
     known = (known_problems() if problems is None else set(problems)) | {"default", *METRIC_ROPES}
     out = {}
     for name, value in rope.items():
@@ -93,8 +97,9 @@ def _check_rope(rope, problems: set[str] | None) -> dict[str, float]:
                                        f"({', '.join(sorted(known - {'default', *METRIC_ROPES}))}) or a calibration "
                                        f"error ({', '.join(METRIC_ROPES)})")
         if not _number(value) or value < 0:
-            raise VerdictSettingsError(f"verdict.rope.{name} = {value!r}: must be a finite number >= 0 (in the units "
-                                       "of what it is the ROPE of)")
+            where = "verdict.rope" if scalar else f"verdict.rope.{name}"
+            raise VerdictSettingsError(f"{where} = {value!r}: must be a finite number >= 0 (in the units of what it "
+                                       "is the ROPE of)")
         out[str(name)] = float(value)
     return out
 

@@ -27,8 +27,15 @@ def test_the_shipped_settings_are_valid_and_give_each_problem_its_rope():
     node = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "config.yaml").verdict)
     settings = verdict_settings(node, keys=["instance", "seed", "problem.params.data_seed"])
     assert (settings.key, settings.test, settings.family, settings.alpha) == ("instance", "wilcoxon", "leader", 0.05)
-    assert settings.objective_ropes(["synthetic", "sphere"]) == {"synthetic": 0.01, "sphere": 0.0}
-    assert settings.metric_rope("rotation_error_deg") == 0.05 and settings.metric_rope("ray_error_deg") is None
+    assert settings.objective_ropes(["synthetic", "sphere"]) == {"synthetic": 0.0, "sphere": 0.0}
+    assert settings.metric_rope("ray_error_deg") is None
+
+
+def test_a_rope_per_problem_and_per_calibration_error():
+    settings = verdict_settings({"rope": {"default": 0.1, "synthetic": 0.01, "rotation_error_deg": 0.05}})
+    assert settings.objective_ropes(["synthetic", "sphere"]) == {"synthetic": 0.01, "sphere": 0.1}
+    assert settings.metric_rope("rotation_error_deg") == 0.05 and settings.metric_rope("focal_error_px") is None
+    assert verdict_settings({"rope": 0.02}).objective_rope("kitti00") == 0.02
 
 
 def test_defaults_when_there_is_no_section():
@@ -44,7 +51,8 @@ def test_defaults_when_there_is_no_section():
     ({"rope": {"synthetc": 0.1}}, "verdict.rope.synthetc: unknown ROPE name"),
     ({"rope": {"default": -0.01}}, "verdict.rope.default = -0.01: must be a finite number >= 0"),
     ({"rope": {"default": float("nan")}}, "verdict.rope.default = nan"),
-    ({"rope": 0.1}, "verdict.rope must be a section"),
+    ({"rope": -0.1}, "verdict.rope = -0.1: must be a finite number >= 0"),
+    ({"rope": "wide"}, "verdict.rope must be a number >= 0 or a section"),
     ({"key": ""}, "verdict.key = '': must be the name of a record key"),
     ({"colour": "red"}, "verdict: unknown setting(s) ['colour']"),
 ])
