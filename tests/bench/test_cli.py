@@ -149,7 +149,7 @@ def test_help_names_problems_optimisers_and_the_default_sweep(capsys, monkeypatc
         assert name in out
     for problem in ("synthetic", "sphere", "kitti00"):
         assert problem in out
-    assert "Default sweep: problem=synthetic, optimizer=psoga,pso,ga,cmaes,tpe,random, seed=range(0,3)" in out
+    assert "Default sweep: problem=synthetic, instance=range(0,12), optimizer=psoga,pso,ga,cmaes,tpe,random," in out
     assert "Hydra" not in out.splitlines()[0] and "Powered by Hydra" not in out
 
 

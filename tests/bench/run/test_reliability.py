@@ -34,7 +34,7 @@ def _comparable(record: dict) -> dict:
 
 
 def test_a_killed_job_resumes_from_its_log_to_the_identical_record(tmp_path):
-    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "seed=0",
+    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "instance=0",
             "budget.evals=960"]
     job = tmp_path / "cut" / "sphere" / "random" / "i0"
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args, f"hydra.sweep.dir={tmp_path / 'cut'}"],
@@ -113,8 +113,8 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
     # the sweep goes on, its exit code says some job failed, and its last line counts them
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "Jobs: 4 in all, 2 ok, 2 failed (exit code 1)" in proc.stdout.strip().splitlines()[-5:]
-    assert "failed: job 2/4 sphere/failing/i1" in proc.stdout
-    failed = json.loads((tmp_path / "s" / "sphere" / "failing" / "seed1" / "record.json").read_text())
+    assert "failed: job 3/4 sphere/failing/i1" in proc.stdout
+    failed = json.loads((tmp_path / "s" / "sphere" / "failing" / "i1" / "record.json").read_text())
     assert failed["status"] == "failed" and "deliberate failure" in failed["error"]["message"]
     assert failed["n_evals"] == 8  # its evaluated batch is kept
     board = pd.read_csv(tmp_path / "s" / "report" / "leaderboard.csv").set_index("optimizer")
@@ -123,7 +123,7 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
 
 
 def test_two_sweeps_started_in_the_same_second_never_share_a_folder(tmp_path):
-    cmd = [sys.executable, "-m", "bench", *FAST, "optimizer=random", "seed=0"]
+    cmd = [sys.executable, "-m", "bench", *FAST, "optimizer=random", "instance=0"]
     procs = [subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
              for _ in range(2)]
     assert [p.wait(timeout=300) for p in procs] == [0, 0]
