@@ -3,7 +3,7 @@
 Examples::
 
     python -m bench                                   # the default comparison
-    python -m bench optimizer=psoga,pso,cmaes seed='range(10)'
+    python -m bench optimizer=psoga,pso,cmaes instance='range(10)'
     python -m bench problem=rastrigin budget.evals=500 hydra.sweep.dir=runs/mine   # resumable folder
 
 Exit codes: 0 every job ok; 1 some job failed (the last lines say which); 2 invalid input,
@@ -26,6 +26,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from bench.records import job_name
 from bench.run import callbacks, hydra_guard
 from bench.run.job import exit_with_the_sweep, plain, run_configured_job
 from bench.run.preflight import CONF_DIR, preflight_plan
@@ -36,6 +37,8 @@ log = logging.getLogger("bench")
 # same second share a folder. Cached by OmegaConf, and Hydra copies the cache into every job.
 OmegaConf.register_new_resolver("bench_unique", lambda: f"{os.getpid()}-{uuid.uuid4().hex[:6]}",
                                 use_cache=True, replace=True)
+# A job's folder: <problem>/<optimizer>/i<instance> (-seed<seed> when the seed is set apart).
+OmegaConf.register_new_resolver("bench_job_name", job_name, replace=True)
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def _job(cfg: DictConfig) -> float | None:
@@ -44,7 +47,7 @@ def _job(cfg: DictConfig) -> float | None:
     job_dir = Path(hc.runtime.output_dir)
     total = os.environ.get("BENCH_SWEEP_JOBS") or "?"
     num = OmegaConf.select(hc, "job.num", default=0) or 0  # missing in hydra.mode=RUN
-    label = f"job {num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/seed{cfg.seed}"
+    label = f"job {num + 1}/{total} {cfg.problem.name}/{cfg.optimizer.name}/{job_name(cfg.instance, cfg.seed)}"
     print(f"{label} -> {job_dir}", file=sys.stderr, flush=True)
     if hc.mode != RunMode.MULTIRUN:  # for the resume hint after a Ctrl-C
         callbacks.LAST_SWEEP["run_dir"] = job_dir
@@ -79,12 +82,12 @@ def help_text() -> str:
         + f", budget.evals={primary.budget.evals}, budget.seconds={primary.budget.seconds}",
         "",
         "Examples:",
-        "  avio-bench optimizer=psoga,pso,cmaes seed='range(10)' budget.evals=500",
+        "  avio-bench optimizer=psoga,pso,cmaes instance='range(10)' budget.evals=500",
         "  avio-bench problem=sphere optimizer=random hydra.sweep.dir=runs/mine   # a fixed folder resumes",
         "  avio-bench hydra/launcher=joblib hydra.launcher.n_jobs=4",
         "",
         "Every job is validated before any work (exit 2 with one message); a job that fails is recorded",
-        "and the sweep goes on (exit 1 at the end). Records: <sweep>/<problem>/<optimizer>/seed<k>/.",
+        "and the sweep goes on (exit 1 at the end). Records: <sweep>/<problem>/<optimizer>/i<instance>/.",
         "",
         "More: --cfg job (the composed config), --hydra-help (Hydra's flags),",
         "      --shell-completion install=bash (tab completion), README.md.",

@@ -60,6 +60,13 @@ class RecordError(BenchError):
     """A record or log file is unreadable; the message names the file and line."""
 
 
+def job_name(instance, seed) -> str:
+    """A job's folder name inside ``<problem>/<optimizer>/`` (``hydra.sweep.subdir``) and its label:
+    ``i<instance>``, or ``i<instance>-seed<seed>`` when the optimiser's seed was set apart from the
+    instance (so that sweeping ``seed`` on one instance gives each job a folder of its own)."""
+    return f"i{instance}" if str(seed) == str(instance) else f"i{instance}-seed{seed}"
+
+
 def _jsonable(value):
     if isinstance(value, np.ndarray):
         return value.tolist()

@@ -25,11 +25,13 @@ from bench.problems.base import build_problem
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf" / "problem"
 
 
-def problem_config(name: str, params: dict | None = None) -> dict:
-    """``{"name", "params"}`` as the harness composes it for ``problem=name`` plus ``params`` overrides.
+def problem_config(name: str, params: dict | None = None, instance: int = 0) -> dict:
+    """``{"name", "params"}`` as the harness composes it for ``problem=name instance=instance`` plus
+    ``params`` overrides.
 
-    The yaml's params are the defaults; ``params`` are merged over them with OmegaConf (a dict
-    merges into a dict key by key, anything else replaces). Without a yaml, ``params`` alone.
+    The yaml's params are the defaults (``${instance}`` in them resolved to ``instance``, as the
+    sweep resolves it); ``params`` are merged over them with OmegaConf (a dict merges into a dict
+    key by key, anything else replaces). Without a yaml, ``params`` alone.
     """
     from omegaconf import OmegaConf
 
@@ -37,8 +39,9 @@ def problem_config(name: str, params: dict | None = None) -> dict:
     if not path.is_file():
         return {"name": name, "params": dict(params or {})}
     conf = OmegaConf.load(path)
-    merged = OmegaConf.merge(conf.get("params") or {}, params or {})
-    return {"name": str(conf.get("name", name)), "params": OmegaConf.to_container(merged, resolve=True)}
+    root = OmegaConf.create({"instance": instance, "params": conf.get("params") or {}})
+    merged = OmegaConf.merge(root, {"params": params or {}})
+    return {"name": str(conf.get("name", name)), "params": OmegaConf.to_container(merged, resolve=True)["params"]}
 
 
 class CallableProblem:
@@ -89,12 +92,13 @@ class CallableProblem:
         return f"<{type(self).__name__} {self.config['name']} d={self.d} params={self.config['params']}>"
 
 
-def make(name: str, **params) -> CallableProblem:
-    """The problem registered as ``name`` (or configured in ``bench/conf/problem/<name>.yaml``),
-    built with ``params`` over the yaml's defaults, as a :class:`CallableProblem`.
+def make(name: str, instance: int = 0, **params) -> CallableProblem:
+    """The problem registered as ``name`` (or configured in ``bench/conf/problem/<name>.yaml``) on
+    ``instance`` (the sweep's ``instance=``), built with ``params`` over the yaml's defaults, as a
+    :class:`CallableProblem`.
 
     An unknown name raises the registry's KeyError (listing the valid names); bad params the
     problem's own error (TypeError for an unknown keyword, ProblemError for a bad value).
     """
-    config = problem_config(name, params)
+    config = problem_config(name, params, instance)
     return CallableProblem(build_problem({"problem": config}), config)

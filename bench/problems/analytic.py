@@ -3,13 +3,21 @@
 Each function is evaluated on normalised coordinates ``u = (x - lower) / (upper - lower)``
 shifted so that its minimum (f = 0) sits at the paper's PSO–GA point, inside the box and away
 from its centre, so that no method is favoured by a centred optimum.
+
+``instance`` (the sweep's ``instance``) draws COCO-style instances (Hansen et al. 2021, "COCO: a
+platform for comparing continuous optimizers"): instance 0 is the plain function above; instance
+k > 0 moves the optimum to u* drawn uniformly in [0.1, 0.9]^d and rotates the function about it,
+``f(x) = g(Q scale (u - u*))`` with Q a uniformly drawn rotation (scipy's ``special_ortho_group``),
+both from ``numpy.random.default_rng([k, crc32(name)])``, so that each function has its own draw.
 """
 
 from __future__ import annotations
 
 import time
+import zlib
 
 import numpy as np
+from scipy.stats import special_ortho_group
 
 from avio.reference import PAPER_TABLE1
 from bench.problems.base import ProblemError, register
@@ -47,29 +55,42 @@ class AnalyticProblem:
     """``f(x) = g(scale * (u(x) - u*))`` for g in sphere/rastrigin/rosenbrock.
 
     delay_s_per_batch: optional sleep per evaluate() call (seconds), to imitate an expensive
-    objective in harness-overhead benchmarks.
+    objective in harness-overhead benchmarks. instance: 0 the plain function, k > 0 a shifted and
+    rotated one (module docstring).
     """
 
     f_unit = ""  # dimensionless
 
-    def __init__(self, function: str, delay_s_per_batch: float = 0.0) -> None:
+    def __init__(self, function: str, delay_s_per_batch: float = 0.0, instance: int = 0) -> None:
         if function not in _FUNCTIONS:
             raise ProblemError(f"unknown analytic function {function!r}; valid: {sorted(_FUNCTIONS)}")
         if not delay_s_per_batch >= 0:
             raise ProblemError(f"delay_s_per_batch must be >= 0, got {delay_s_per_batch}")
+        if not isinstance(instance, int) or isinstance(instance, bool) or instance < 0:
+            raise ProblemError(f"instance must be an integer >= 0, got {instance!r}")
         self.name = function
+        self.instance = instance
         self.space = paper_box_space()
         self._g, self._scale = _FUNCTIONS[function]
         self._delay_s = float(delay_s_per_batch)
         self._span = self.space.upper - self.space.lower
-        self.truth = np.array([PAPER_TABLE1[n][3] for n in self.space.names])
-        self._u_star = (self.truth - self.space.lower) / self._span
+        d = self.space.dim
+        if instance == 0:
+            self.truth = np.array([PAPER_TABLE1[n][3] for n in self.space.names])
+            self._u_star = (self.truth - self.space.lower) / self._span
+            self._rotation = np.eye(d)
+        else:
+            rng = np.random.default_rng([instance, zlib.crc32(function.encode())])
+            self._u_star = rng.uniform(0.1, 0.9, d)
+            self._rotation = special_ortho_group.rvs(d, random_state=rng)
+            self.truth = self.space.lower + self._u_star * self._span
         self.f_truth = 0.0
         self.f_reference = float(self.evaluate(self.space.reference[None])[0][0])
 
     @property
     def identity(self) -> dict:
-        return {"function": self.name, "optimum": self.truth.tolist()}
+        return {"function": self.name, "instance": self.instance, "optimum": self.truth.tolist(),
+                "rotation": self._rotation.tolist()}
 
     def evaluate(self, X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """f (n,) and one metric: the distance to the optimum in normalised units."""
@@ -77,20 +98,22 @@ class AnalyticProblem:
         if self._delay_s:
             time.sleep(self._delay_s)
         z = self._scale * ((X - self.space.lower) / self._span - self._u_star)
+        if self.instance:
+            z = z @ self._rotation.T
         dist = np.linalg.norm((X - self.truth) / self._span, axis=1)
         return self._g(z), {"distance_to_optimum": dist}
 
 
 @register("sphere")
-def sphere(delay_s_per_batch: float = 0.0) -> AnalyticProblem:
-    return AnalyticProblem("sphere", delay_s_per_batch)
+def sphere(delay_s_per_batch: float = 0.0, instance: int = 0) -> AnalyticProblem:
+    return AnalyticProblem("sphere", delay_s_per_batch, instance)
 
 
 @register("rastrigin")
-def rastrigin(delay_s_per_batch: float = 0.0) -> AnalyticProblem:
-    return AnalyticProblem("rastrigin", delay_s_per_batch)
+def rastrigin(delay_s_per_batch: float = 0.0, instance: int = 0) -> AnalyticProblem:
+    return AnalyticProblem("rastrigin", delay_s_per_batch, instance)
 
 
 @register("rosenbrock")
-def rosenbrock(delay_s_per_batch: float = 0.0) -> AnalyticProblem:
-    return AnalyticProblem("rosenbrock", delay_s_per_batch)
+def rosenbrock(delay_s_per_batch: float = 0.0, instance: int = 0) -> AnalyticProblem:
+    return AnalyticProblem("rosenbrock", delay_s_per_batch, instance)

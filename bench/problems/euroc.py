@@ -54,7 +54,7 @@ class EurocParams(VioParams):
     """data_dir: null = $AVIO_DATA or ../shared/data (the folder holding euroc_v1_01/);
     drives: calibration windows [t_first_s, t_last_s] (seconds from t0, inside 0-30);
     holdout: the held-out window or None; data_seed: which tracks are kept per triplet when
-    max_features is set (>= 0); max_features: tracks per triplet (None: all, ~23);
+    max_features is set (>= 0; the instance); max_features: tracks per triplet (None: all, ~23);
     gyro_bias_init / accel_bias_init: the filter's initial biases (avio.datasets.euroc.load_euroc);
     nominal_perturbation: nominal = Kalibr + this (avio.calibration.CalibrationPerturbation fields).
     """
@@ -65,7 +65,7 @@ class EurocParams(VioParams):
     drives: tuple = ((20.0, 30.0),)
     holdout: tuple | None = (0.0, 20.0)
     data_seed: int = 0
-    max_features: int | None = None
+    max_features: int | None = 20
     gyro_bias_init: str = "ground_truth"
     accel_bias_init: str = "zero"
     nominal_perturbation: dict = field(default_factory=lambda: {

@@ -61,6 +61,7 @@ def job_record(identity: dict, job_key: str | None, config_hash_: str, code: dic
         "error": error,
         "problem": _name(identity.get("problem")),
         "optimizer": _name(identity.get("optimizer")),
+        "instance": identity.get("instance"),
         "seed": identity.get("seed"),
         "budget": budget,
         "config": config,

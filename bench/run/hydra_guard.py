@@ -29,6 +29,7 @@ from hydra.core.utils import JobReturn, JobStatus
 from omegaconf import OmegaConf
 
 from bench.errors import BenchError
+from bench.records import job_name
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,7 @@ def setup_failed(config, job_dir_key: str, job_subdir_key: str | None, exc: Base
     total = os.environ.get("BENCH_SWEEP_JOBS") or "?"
     problem, optimizer = ((cfg.get(k) or {}).get("name") if isinstance(cfg.get(k), dict) else cfg.get(k)
                           for k in ("problem", "optimizer"))
-    label = f"job {num + 1}/{total} {problem}/{optimizer}/seed{cfg.get('seed')}"
+    label = f"job {num + 1}/{total} {problem}/{optimizer}/{job_name(cfg.get('instance'), cfg.get('seed'))}"
     try:
         raise JobSetupError(f"Hydra could not set up the job folder {job_dir} before the job started "
                             f"({type(exc).__name__}: {exc})") from exc

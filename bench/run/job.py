@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 hydra_guard.install()  # here too for a launcher's worker, which imports this module to unpickle its job
 
 # settings that change how a job is shown, not what it computes: left out of its identity
-PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra")
+PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict")
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
@@ -75,6 +75,14 @@ def budget_of(cfg: dict) -> Budget:
         return Budget(evals=b.get("evals"), seconds=b.get("seconds"))
     except RunError as err:
         raise ConfigError(str(err)) from None
+
+
+def instance_of(cfg: dict) -> int:
+    """The job's problem instance (``instance``, an integer >= 0); ConfigError naming the key otherwise."""
+    instance = cfg.get("instance", 0)
+    if not isinstance(instance, int) or isinstance(instance, bool) or not 0 <= instance < 2**63:
+        raise ConfigError(f"instance must be an integer in [0, 2**63) (the problem instance), got {instance!r}")
+    return instance
 
 
 def seed_of(cfg: dict) -> int:
@@ -186,5 +194,5 @@ def exit_with_the_sweep() -> None:
     threading.Thread(target=watch, daemon=True, name="bench-sweep-watch").start()
 
 
-__all__ = ["ConfigError", "build_problem", "budget_of", "exit_with_the_sweep", "identity_of", "job_key", "plain",
-           "run_configured_job"]
+__all__ = ["ConfigError", "build_problem", "budget_of", "exit_with_the_sweep", "identity_of", "instance_of", "job_key",
+           "plain", "run_configured_job"]

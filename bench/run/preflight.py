@@ -3,14 +3,17 @@
 Hydra composes and launches jobs one by one, so a typo in the fifth optimiser name, a budget
 of 0 or a missing data file would surface only after the first jobs ran. Here the command
 line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
-with Hydra's compose API, and each is checked: registered names, plugins, budget, seed,
-progress interval, no NaN, the problem's own cheap checks (``Problem.preflight``: its search
-space, its data files), the problem itself (built once per distinct problem config, as the
-first job would build it: a serial sweep's jobs then reuse it), the optimiser built on the job's
-space with its hyperparameters (and asked once), the sweep folder (a writable folder), and every job
+with Hydra's compose API, and each is checked: the instance (an integer >= 0), the report's verdict
+settings (``bench.verdict_settings``), registered names, plugins, budget, seed, progress interval,
+no NaN, the problem's own cheap checks (``Problem.preflight``: its search space, its data files),
+the problem itself (built once per distinct problem config, as the first job would build it: a
+serial sweep's jobs then reuse it), the optimiser built on the job's space with its
+hyperparameters (and asked once), the sweep folder (a writable folder), and every job
 folder that already exists (it must hold this very job — same resolved config —, not be in use by another
 process, and hold no symbolic link in place of its files).
 The first problem found is one clear message and exit code 2; nothing has been written.
+A problem whose truth lies outside its search bounds is warned about, one line per problem, before the
+sweep starts (``bench.run.design_checks``).
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from bench.records import (
     read_record,
     refuse_symlink,
 )
+from bench.run.design_checks import TruthWarnings, check_design
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
 from bench.run.log_checks import linked_file
@@ -141,19 +145,19 @@ def check_keys(argv: list[str]) -> None:
 _BUILT: set[str] = set()  # problem configs announced (build_problem caches the problems themselves)
 
 
-def _built_space(cfg: dict) -> Space:
-    """The space of the job's problem, built as a job builds it (``bench.problems.build_problem``, cached
-    per process, so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError."""
+def _built_problem(cfg: dict):
+    """The job's problem, built as a job builds it (``bench.problems.build_problem``, cached per process,
+    so a serial sweep's jobs reuse it); a problem that cannot be built is a ConfigError. Said once per
+    problem name (its instances are built too, silently)."""
     from bench.problems.base import build_problem
 
     name = cfg["problem"]["name"]
-    key = json.dumps(cfg["problem"], sort_keys=True, default=str)
-    if key not in _BUILT:
-        _BUILT.add(key)
-        print(f"Checking: building problem {name} to check the optimisers on its space ...", file=sys.stderr,
-              flush=True)
+    if name not in _BUILT:
+        _BUILT.add(name)
+        print(f"Checking: building problem {name} (each instance) to check the optimisers on its space ...",
+              file=sys.stderr, flush=True)
     try:
-        return build_problem(cfg).space
+        return build_problem(cfg)
     except (BenchError, AvioError, OSError, TypeError, KeyError) as err:
         raise ConfigError(f"problem={name}: {err}") from None
 
@@ -184,8 +188,9 @@ def check_optimizer(cfg: dict, space: Space) -> None:
     space.check(X)
 
 
-def check_job(cfg: dict) -> None:
-    """Raise ConfigError if one composed job config is invalid."""
+def check_job(cfg: dict, truths: TruthWarnings | None = None) -> None:
+    """Raise ConfigError if one composed job config is invalid; note in ``truths`` whether its
+    problem's truth lies outside the search bounds (when the problem is built)."""
     _check_finite(cfg, "")
     import_plugins(cfg)
     name = cfg["optimizer"].get("name")
@@ -213,7 +218,10 @@ def check_job(cfg: dict) -> None:
     from bench.problems.analytic import paper_box_space
 
     check_optimizer(cfg, paper_box_space())
-    check_optimizer(cfg, _built_space(cfg))
+    problem = _built_problem(cfg)
+    check_optimizer(cfg, problem.space)
+    if truths is not None:
+        truths.add(pname, cfg.get("instance"), problem)
 
 
 def _check_finite(node, path: str) -> None:
@@ -331,13 +339,15 @@ def plan(argv: list[str]) -> SweepPlan:
             jobs = expand_jobs(argv)
             if len(jobs) > 4:
                 print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
+            truths = TruthWarnings()
             for job_overrides in jobs:
                 hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
                 cfg = _job_part(hcfg)
                 key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
                 if key not in seen:
                     seen.add(key)
-                    check_job(cfg)
+                    check_design(cfg)  # the instance and the report's settings, before the problem is built
+                    check_job(cfg, truths)
                 result.n_jobs += 1
                 sweep_dir, job_dir = _job_dir(hcfg)
                 if sweep_dir is not None and result.sweep_dir is None:
@@ -348,6 +358,8 @@ def plan(argv: list[str]) -> SweepPlan:
                     result.job_dirs.append(job_dir)
     finally:
         GlobalHydra.instance().clear()
+    for line in truths.lines():
+        print(line, file=sys.stderr, flush=True)
     return result
 
 

@@ -21,11 +21,11 @@ def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 @pytest.mark.slow
 def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
     out = tmp_path / "sweep"
-    proc = bench("problem=sphere", "optimizer=random,one_plus_one", "seed=range(3)", "budget.evals=64",
+    proc = bench("problem=sphere", "optimizer=random,one_plus_one", "instance=range(3)", "budget.evals=64",
                  f"hydra.sweep.dir={out}", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     records = sorted(p.relative_to(out).as_posix() for p in out.rglob("record.json"))
-    assert records == [f"sphere/{o}/seed{s}/record.json" for o in ("one_plus_one", "random") for s in range(3)]
+    assert records == [f"sphere/{o}/i{s}/record.json" for o in ("one_plus_one", "random") for s in range(3)]
     board = pd.read_csv(out / "report" / "leaderboard.csv")
     assert set(board["optimizer"]) == {"random", "one_plus_one"}
     assert (board["n_runs"] == 3).all() and (board["n_failed"] == 0).all()
@@ -41,6 +41,18 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["budget.evals=0"], "budget.evals must be a positive integer or null, got 0"),
         (["budget.evals=true"], "budget.evals must be a positive integer or null, got True"),
         (["seed=-1"], "seed must be an integer in [0, 2**63), got -1"),
+        (["instance=-1"], "instance must be an integer in [0, 2**63) (the problem instance), got -1"),
+        (["instance=1.5"], "instance must be an integer in [0, 2**63) (the problem instance), got 1.5"),
+        (["instance=abc"], "instance must be an integer in [0, 2**63) (the problem instance), got 'abc'"),
+        (["instance=[0,-2]"], "instance must be an integer in [0, 2**63) (the problem instance), got [0, -2]"),
+        (["verdict.test=tukey"], "verdict.test = 'tukey': unknown test; valid: wilcoxon, nemenyi, conover"),
+        (["verdict.family=some"], "verdict.family = 'some': valid: leader, all"),
+        (["verdict.alpha=0"], "verdict.alpha = 0: must be a number in (0, 1)"),
+        (["verdict.rope={sphear:0.1}"], "verdict.rope.sphear: unknown ROPE name; valid: default, a problem ("),
+        (["verdict.rope=-0.1"], "verdict.rope = -0.1: must be a finite number >= 0"),
+        (["verdict.rope={focal_error_px:-1}"], "verdict.rope.focal_error_px = -1: must be a finite number >= 0"),
+        (["verdict.key=camera"], "verdict.key = 'camera': the records lack this key, so runs cannot be paired on it"),
+        (["+verdict.pairs=all"], "verdict: unknown setting(s) ['pairs']; valid: key, test, family, alpha, rope"),
         (["progress_every_s=abc"], "progress_every_s must be a positive number of seconds, got 'abc'"),
         (["plugins=[.evil]"], "plugins: '.evil' is not an absolute module name"),
         (["plugins=['']"], "plugins: '' is not an absolute module name"),
@@ -137,7 +149,7 @@ def test_help_names_problems_optimisers_and_the_default_sweep(capsys, monkeypatc
         assert name in out
     for problem in ("synthetic", "sphere", "kitti00"):
         assert problem in out
-    assert "Default sweep: problem=synthetic, optimizer=psoga,pso,ga,cmaes,tpe,random, seed=range(0,3)" in out
+    assert "Default sweep: problem=synthetic, instance=range(0,12), optimizer=psoga,pso,ga,cmaes,tpe,random," in out
     assert "Hydra" not in out.splitlines()[0] and "Powered by Hydra" not in out
 
 
@@ -178,5 +190,5 @@ def test_a_single_job_in_hydra_run_mode(tmp_path):
     proc = bench("problem=sphere", "optimizer=random", "budget.evals=32", "hydra.mode=RUN",
                  f"hydra.run.dir={tmp_path / 'one'}", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "job 1/1 sphere/random/seed0" in proc.stderr
+    assert "job 1/1 sphere/random/i0" in proc.stderr
     assert {"record.json", "job.json", "evals.jsonl"} <= {p.name for p in (tmp_path / "one").iterdir()}

@@ -19,12 +19,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_ctrl_c_ends_with_one_line_naming_the_folder_and_the_command_that_resumes_it(tmp_path):
-    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "seed=range(2)",
+    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "instance=range(2)",
             "budget.evals=400", "report=false"]
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
-    while time.time() < deadline and not list((tmp_path / "runs").glob("*/sphere/random/seed0/evals.jsonl")):
+    while time.time() < deadline and not list((tmp_path / "runs").glob("*/sphere/random/i0/evals.jsonl")):
         time.sleep(0.02)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
@@ -36,13 +36,13 @@ def test_ctrl_c_ends_with_one_line_naming_the_folder_and_the_command_that_resume
     assert last.startswith(f"Interrupted: the sweep in {folder} resumes with: python -m bench ")
     command = shlex.split(last.split("resumes with: ", 1)[1])
     assert command == ["python", "-m", "bench", *args, f"hydra.sweep.dir={folder}"]
-    assert not (sweep / "sphere" / "random" / "seed0" / "record.json").exists()  # it was cut mid-job
+    assert not (sweep / "sphere" / "random" / "i0" / "record.json").exists()  # it was cut mid-job
 
     again = subprocess.run([sys.executable, *command[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "resum" in again.stderr and list((tmp_path / "runs").iterdir()) == [sweep]  # no new folder
     for seed in range(2):
-        assert '"n_evals": 400' in (sweep / "sphere" / "random" / f"seed{seed}" / "record.json").read_text()
+        assert '"n_evals": 400' in (sweep / "sphere" / "random" / f"i{seed}" / "record.json").read_text()
 
 
 def test_a_fixed_sweep_folder_is_resumed_by_the_same_command():
@@ -52,8 +52,8 @@ def test_a_fixed_sweep_folder_is_resumed_by_the_same_command():
     callbacks.LAST_SWEEP.clear()
     assert resume_hint(["seed=0"]) == "Interrupted before the sweep started: nothing was run or written."
     callbacks.LAST_SWEEP["sweep_dir"] = Path("mine")
-    assert resume_hint(["seed=range(3)", "hydra.sweep.dir=mine"], "/venv/bin/avio-bench") == \
-        "Interrupted: the sweep in mine resumes with: avio-bench 'seed=range(3)' hydra.sweep.dir=mine"
+    assert resume_hint(["instance=range(3)", "hydra.sweep.dir=mine"], "/venv/bin/avio-bench") == \
+        "Interrupted: the sweep in mine resumes with: avio-bench 'instance=range(3)' hydra.sweep.dir=mine"
     callbacks.LAST_SWEEP.clear()
     callbacks.LAST_SWEEP["run_dir"] = Path("/r/one")
     assert resume_hint(["hydra.mode=RUN"]) == \
@@ -76,13 +76,13 @@ def test_a_key_the_config_does_not_have_is_refused_naming_the_nearest(tmp_path, 
     out = capsys.readouterr()
     assert out.out == "" and len(out.err.strip().splitlines()) == 1
     assert out.err.startswith(f"error: {override}: the config has no key {key!r}")
-    assert f"did you mean {nearest}?" in out.err and "Top-level keys: budget, optimizer" in out.err
+    assert f"did you mean {nearest}?" in out.err and "Top-level keys: budget, instance, optimizer" in out.err
     assert not (tmp_path / "sweep").exists()
 
 
 def test_keys_hydra_adds_with_plus_still_work(tmp_path, capsys):
     sweep = f"hydra.sweep.dir={tmp_path / 'sweep'}"
-    base = ["problem=sphere", "optimizer=random", "seed=0", sweep]
+    base = ["problem=sphere", "optimizer=random", "instance=0", sweep]
     assert preflight_plan([*base, "hydra/launcher=joblib"])[0] == 0  # a Hydra config group
     assert preflight_plan([*base, "+hydra.job.env_set.X=1"])[0] == 0  # a Hydra key
     # a group of a plugin's search path, added with +
@@ -118,7 +118,7 @@ def test_every_entry_point_writes_bad_input_to_stderr_and_nothing_to_stdout(tmp_
 
 def test_a_sweeps_last_line_names_report_html(tmp_path):
     out = tmp_path / "s"
-    proc = subprocess.run([sys.executable, "-m", "bench", "problem=sphere", "optimizer=random", "seed=0",
+    proc = subprocess.run([sys.executable, "-m", "bench", "problem=sphere", "optimizer=random", "instance=0",
                            "budget.evals=32", f"hydra.sweep.dir={out}"], cwd=tmp_path, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -36,7 +36,7 @@ def test_kitti_raw_missing_drive_says_how_to_point_at_one(tmp_path):
 
 def test_the_command_line_exits_2_with_the_hint(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "AVIO_DATA": str(tmp_path / "empty")}
-    proc = subprocess.run([sys.executable, "-m", "bench", "problem=kitti00", "optimizer=random", "seed=0",
+    proc = subprocess.run([sys.executable, "-m", "bench", "problem=kitti00", "optimizer=random", "instance=0",
                            f"hydra.sweep.dir={tmp_path / 'sweep'}"], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr[-2000:]

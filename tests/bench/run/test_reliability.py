@@ -34,9 +34,9 @@ def _comparable(record: dict) -> dict:
 
 
 def test_a_killed_job_resumes_from_its_log_to_the_identical_record(tmp_path):
-    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "seed=0",
+    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "instance=0",
             "budget.evals=960"]
-    job = tmp_path / "cut" / "sphere" / "random" / "seed0"
+    job = tmp_path / "cut" / "sphere" / "random" / "i0"
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args, f"hydra.sweep.dir={tmp_path / 'cut'}"],
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
@@ -50,14 +50,14 @@ def test_a_killed_job_resumes_from_its_log_to_the_identical_record(tmp_path):
     assert bench(*args, f"hydra.sweep.dir={tmp_path / 'cut'}", cwd=tmp_path).returncode == 0
     assert bench(*args, f"hydra.sweep.dir={tmp_path / 'full'}", cwd=tmp_path).returncode == 0
     resumed = json.loads((job / "record.json").read_text())
-    full = json.loads((tmp_path / "full" / "sphere" / "random" / "seed0" / "record.json").read_text())
+    full = json.loads((tmp_path / "full" / "sphere" / "random" / "i0" / "record.json").read_text())
     assert _comparable(resumed) == _comparable(full)
     assert [e["f"] for e in read_eval_log(job)] == [
-        e["f"] for e in read_eval_log(tmp_path / "full" / "sphere" / "random" / "seed0")]
+        e["f"] for e in read_eval_log(tmp_path / "full" / "sphere" / "random" / "i0")]
 
 
 def test_rerunning_a_finished_sweep_skips_its_jobs(tmp_path):
-    args = [*FAST, "optimizer=random", "seed=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
+    args = [*FAST, "optimizer=random", "instance=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
     assert bench(*args, cwd=tmp_path).returncode == 0
     before = {p: p.stat().st_mtime_ns for p in (tmp_path / "s").rglob("record.json")}
     again = bench(*args, cwd=tmp_path)
@@ -69,7 +69,7 @@ _BOARD_KEYS = ["problem", "optimizer", "n_runs", "n_failed", "best_f_median", "b
 
 
 def test_serial_and_joblib_parallel_sweeps_give_identical_leaderboards_but_for_wall_times(tmp_path):
-    common = [*REPORTED, "optimizer=random,one_plus_one", "seed=range(2)"]
+    common = [*REPORTED, "optimizer=random,one_plus_one", "instance=range(2)"]
     serial = bench(*common, f"hydra.sweep.dir={tmp_path / 'serial'}", cwd=tmp_path)
     parallel = bench(*common, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                      f"hydra.sweep.dir={tmp_path / 'parallel'}", cwd=tmp_path)
@@ -84,7 +84,7 @@ def test_serial_and_joblib_parallel_sweeps_give_identical_leaderboards_but_for_w
 
 
 def test_submitit_local_sweep_runs(tmp_path):
-    proc = bench(*FAST, "optimizer=random", "seed=range(2)", "hydra/launcher=submitit_local",
+    proc = bench(*FAST, "optimizer=random", "instance=range(2)", "hydra/launcher=submitit_local",
                  "hydra.launcher.timeout_min=5", f"hydra.sweep.dir={tmp_path / 's'}", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     records = [json.loads(p.read_text()) for p in (tmp_path / "s").rglob("record.json")]
@@ -107,14 +107,14 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
     (tmp_path / "conf" / "optimizer").mkdir(parents=True)
     (tmp_path / "conf" / "optimizer" / "failing.yaml").write_text("name: failing\nparams:\n  batch_size: 8\n")
     env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    proc = bench(*REPORTED, "optimizer=failing,random", "seed=range(2)", "plugins=[failing_plugin]",
+    proc = bench(*REPORTED, "optimizer=failing,random", "instance=range(2)", "plugins=[failing_plugin]",
                  f"hydra.searchpath=[file://{tmp_path / 'conf'}]", f"hydra.sweep.dir={tmp_path / 's'}",
                  cwd=tmp_path, env=env)
     # the sweep goes on, its exit code says some job failed, and its last line counts them
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "Jobs: 4 in all, 2 ok, 2 failed (exit code 1)" in proc.stdout.strip().splitlines()[-5:]
-    assert "failed: job 2/4 sphere/failing/seed1" in proc.stdout
-    failed = json.loads((tmp_path / "s" / "sphere" / "failing" / "seed1" / "record.json").read_text())
+    assert "failed: job 3/4 sphere/failing/i1" in proc.stdout
+    failed = json.loads((tmp_path / "s" / "sphere" / "failing" / "i1" / "record.json").read_text())
     assert failed["status"] == "failed" and "deliberate failure" in failed["error"]["message"]
     assert failed["n_evals"] == 8  # its evaluated batch is kept
     board = pd.read_csv(tmp_path / "s" / "report" / "leaderboard.csv").set_index("optimizer")
@@ -123,13 +123,13 @@ def test_a_failing_optimizer_fails_only_its_jobs_and_the_leaderboard_shows_it(tm
 
 
 def test_two_sweeps_started_in_the_same_second_never_share_a_folder(tmp_path):
-    cmd = [sys.executable, "-m", "bench", *FAST, "optimizer=random", "seed=0"]
+    cmd = [sys.executable, "-m", "bench", *FAST, "optimizer=random", "instance=0"]
     procs = [subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
              for _ in range(2)]
     assert [p.wait(timeout=300) for p in procs] == [0, 0]
     folders = sorted((tmp_path / "runs").iterdir())
     assert len(folders) == 2
-    assert all((f / "sphere" / "random" / "seed0" / "record.json").exists() for f in folders)
+    assert all((f / "sphere" / "random" / "i0" / "record.json").exists() for f in folders)
 
 
 def _tree(folder: Path) -> dict:
@@ -139,7 +139,7 @@ def _tree(folder: Path) -> dict:
 
 def test_a_changed_setting_on_an_existing_sweep_is_refused_before_hydra_writes(tmp_path):
     # defects 1 and 5: a changed config resumed silently, and a refused run overwrote .hydra/*.yaml and multirun.yaml
-    args = ["problem=sphere", "optimizer=random", "seed=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
+    args = ["problem=sphere", "optimizer=random", "instance=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
     assert bench(*args, "budget.evals=64", cwd=tmp_path).returncode == 0
     before = _tree(tmp_path / "s")
     for change in (["budget.evals=32"], ["budget.evals=64", "optimizer.params.batch_size=16"]):
@@ -156,11 +156,11 @@ def test_a_changed_setting_on_an_existing_sweep_is_refused_before_hydra_writes(t
 
 def test_a_second_sweep_into_a_running_sweeps_folder_fails_fast_and_no_batch_is_lost_or_doubled(tmp_path):
     # defect 2: two sweeps into one hydra.sweep.dir logged every batch twice
-    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "seed=range(2)",
+    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.05", "optimizer=random", "instance=range(2)",
             "budget.evals=960", f"hydra.sweep.dir={tmp_path / 's'}"]
     first = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=tmp_path, stdout=subprocess.PIPE,
                              stderr=subprocess.DEVNULL, text=True)
-    job = tmp_path / "s" / "sphere" / "random" / "seed0"
+    job = tmp_path / "s" / "sphere" / "random" / "i0"
     deadline = time.time() + 120
     while time.time() < deadline and len(read_eval_log(job)) < 3:
         time.sleep(0.02)
@@ -170,8 +170,8 @@ def test_a_second_sweep_into_a_running_sweeps_folder_fails_fast_and_no_batch_is_
     assert time.perf_counter() - t0 < 60  # fails at once (the time is Python and Hydra starting)
     assert first.wait(timeout=300) == 0
     for seed in range(2):
-        log = read_eval_log(tmp_path / "s" / "sphere" / "random" / f"seed{seed}")
-        record = json.loads((tmp_path / "s" / "sphere" / "random" / f"seed{seed}" / "record.json").read_text())
+        log = read_eval_log(tmp_path / "s" / "sphere" / "random" / f"i{seed}")
+        record = json.loads((tmp_path / "s" / "sphere" / "random" / f"i{seed}" / "record.json").read_text())
         assert [e["batch"] for e in log] == list(range(30)) and record["n_batches"] == 30
         assert sum(e["n"] for e in log) == record["n_evals"] == 960
 
@@ -179,11 +179,11 @@ def test_a_second_sweep_into_a_running_sweeps_folder_fails_fast_and_no_batch_is_
 def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
     # defect 2: killing only the joblib parent left its workers running. 40 batches of 0.2 s per
     # job: the kill comes after 2, and the resumed rest takes ~8 s
-    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "seed=range(2)",
+    args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "instance=range(2)",
             "budget.evals=1280", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 's'}"]
     parent = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=tmp_path, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
-    jobs = [tmp_path / "s" / "sphere" / "random" / f"seed{s}" for s in range(2)]
+    jobs = [tmp_path / "s" / "sphere" / "random" / f"i{s}" for s in range(2)]
     deadline = time.time() + 180
     while time.time() < deadline and not all(len(read_eval_log(j)) >= 2 for j in jobs):
         time.sleep(0.05)
@@ -208,9 +208,9 @@ def test_joblib_workers_do_not_outlive_a_killed_sweep(tmp_path):
 
 
 def test_a_corrupt_record_fails_only_its_job_and_the_next_run_resumes_it(tmp_path):
-    args = [*FAST, "optimizer=random", "seed=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
+    args = [*FAST, "optimizer=random", "instance=range(2)", f"hydra.sweep.dir={tmp_path / 's'}"]
     assert bench(*args, cwd=tmp_path).returncode == 0
-    record = tmp_path / "s" / "sphere" / "random" / "seed0" / "record.json"
+    record = tmp_path / "s" / "sphere" / "random" / "i0" / "record.json"
     good = json.loads(record.read_text())
     for content in ("[]", "{}", "{not json"):
         record.write_text(content)

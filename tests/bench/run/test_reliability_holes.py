@@ -169,22 +169,22 @@ def test_hydra_failing_to_set_up_one_job_fails_that_job_and_the_sweep_reaches_it
     real = hydra.core.utils._save_config
 
     def full_disk(cfg, filename, output_dir):
-        if "seed1" in str(output_dir):
+        if "i1" in Path(str(output_dir)).parts:
             raise OSError(errno.ENOSPC, "No space left on device", str(output_dir / filename))
         return real(cfg, filename, output_dir)
 
     monkeypatch.setattr(hydra.core.utils, "_save_config", full_disk)
     sweep = tmp_path / "s"
     with pytest.raises(SystemExit) as exit_info:
-        main(["problem=sphere", "optimizer=random", "seed=range(3)", "budget.evals=16", "report=false",
+        main(["problem=sphere", "optimizer=random", "instance=range(3)", "budget.evals=16", "report=false",
               "progress=false", f"hydra.sweep.dir={sweep}"])
     out = capsys.readouterr()
     assert exit_info.value.code == 1
     # the sweep's summary, then where its records are (bench/run/callbacks.py)
     assert "Jobs: 3 in all, 2 ok, 1 failed (exit code 1)" in out.out.strip().splitlines(), out.out + out.err[-3000:]
-    assert "failed: job 2/3 sphere/random/seed1: Hydra could not set up the job folder" in out.out
+    assert "failed: job 2/3 sphere/random/i1: Hydra could not set up the job folder" in out.out
     assert "Traceback" not in out.out + out.err
-    records = {s: json.loads((sweep / "sphere" / "random" / f"seed{s}" / RECORD).read_text()) for s in range(3)}
+    records = {s: json.loads((sweep / "sphere" / "random" / f"i{s}" / RECORD).read_text()) for s in range(3)}
     assert [records[s]["status"] for s in range(3)] == ["ok", "failed", "ok"]
     assert records[1]["error"]["type"] == "JobSetupError" and "No space left" in records[1]["error"]["message"]
 
@@ -355,19 +355,19 @@ def test_a_job_folder_hydra_cannot_set_up_fails_that_job_under_each_launcher(tmp
     import sys
 
     sweep = tmp_path / "s"
-    (sweep / "sphere" / "random" / "seed1").mkdir(parents=True)
-    (sweep / "sphere" / "random" / "seed1" / ".hydra").write_text("")
+    (sweep / "sphere" / "random" / "i1").mkdir(parents=True)
+    (sweep / "sphere" / "random" / "i1" / ".hydra").write_text("")
     root = Path(__file__).resolve().parents[3]
     env = {**os.environ, "PYTHONPATH": f"{root}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}  # this checkout
-    proc = subprocess.run([sys.executable, "-m", "bench", "problem=sphere", "optimizer=random", "seed=range(3)",
+    proc = subprocess.run([sys.executable, "-m", "bench", "problem=sphere", "optimizer=random", "instance=range(3)",
                            "budget.evals=16", "report=false", "progress=false", *launcher, f"hydra.sweep.dir={sweep}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "Jobs: 3 in all, 2 ok, 1 failed (exit code 1)" in proc.stdout.strip().splitlines()
     assert "Traceback" not in proc.stdout + proc.stderr
-    failed = json.loads((sweep / "sphere" / "random" / "seed1" / RECORD).read_text())
+    failed = json.loads((sweep / "sphere" / "random" / "i1" / RECORD).read_text())
     assert failed["status"] == "failed" and "File exists" in failed["error"]["message"]
-    assert all(json.loads((sweep / "sphere" / "random" / f"seed{s}" / RECORD).read_text())["status"] == "ok"
+    assert all(json.loads((sweep / "sphere" / "random" / f"i{s}" / RECORD).read_text())["status"] == "ok"
                for s in (0, 2))
 
 
