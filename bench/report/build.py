@@ -25,7 +25,7 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
   ``bench.report.evaluations``; ``pandas.read_parquet`` reads it in one call;
 - ``iohprofiler/`` — the runs in the IOHprofiler format that IOHanalyzer loads (one function per
   problem setting, one algorithm per optimiser, one run per job), written by ``ioh``'s logger,
-  see ``bench.report.iohprofiler``.
+  see ``bench.report.evaluations``.
 
 Same records, same options → byte-identical CSV, Markdown, HTML, PNG, Parquet and IOHprofiler files: nothing written
 depends on the time, the machine or where the folders are (job folders are named relative to
@@ -167,8 +167,7 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
                         ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
         _write_csv(frame, out / f"{name}.csv")
     log("report: evaluations.parquet and the IOHprofiler export")
-    from bench.report.evaluations import write_evaluations
-    from bench.report.iohprofiler import write_iohprofiler
+    from bench.report.evaluations import write_evaluations, write_iohprofiler
 
     write_evaluations(records, runs, out / "evaluations.parquet")
     write_iohprofiler(runs, out / "iohprofiler")
