@@ -230,7 +230,8 @@ def leaderboard(runs: pd.DataFrame, summary: pd.DataFrame, comparisons: pd.DataF
     leaders = friedman.set_index("problem")["leader"] if len(friedman) else pd.Series(dtype=object)
     board["leader"] = board["problem"].map(leaders)
     board["verdict"] = board["verdict"].fillna("untestable")
-    board.loc[board["optimizer"] == board["leader"], "verdict"] = "leader"
+    # the leader by mean rank; when every run failed there is nothing to lead
+    board.loc[(board["optimizer"] == board["leader"]) & board["best_f_median"].notna(), "verdict"] = "leader"
     if len(friedman):
         board["alpha"] = board["problem"].map(friedman.set_index("problem")["alpha"])
     board["p_holm_family"] = board.groupby("problem")["p_holm_family"].transform("max")
@@ -266,6 +267,8 @@ def _comparison_sentences(comp: pd.DataFrame, leader: str, rope, unit: str, lead
     """Plain sentences of one problem's post-hoc table, grouped by verdict."""
     against = f" than the leader {leader}" if leader_family else ""
     lines = []
+    if comp.empty:
+        return ["No comparison: fewer than two rows with a shared instance."]
     for verdict, head in (("worse", f"Significantly worse{against} (Holm-adjusted p)"),
                           ("better", f"Significantly better{against} (Holm-adjusted p)"),
                           ("practically equal", f"Practically equal{' to ' + leader if leader_family else ''} "
