@@ -145,6 +145,8 @@ def _labels(records: pd.DataFrame, groups: pd.Series, prefixes, index, names: pd
         keys = sorted(k for k in set().union(*parsed.values())
                       if len({json.dumps(parsed[s].get(k), sort_keys=True) for s in distinct}) > 1
                       and not _fixed_by(instances, settings[idx], k))
+        if not keys:  # every difference is one of the instances
+            continue
         for i in idx:
             setting = parsed[settings[i]]
             shown = ",".join(f"{k}={json.dumps(setting.get(k), default=str)}" for k in keys)
