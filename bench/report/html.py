@@ -19,6 +19,8 @@ from pathlib import Path
 import jinja2
 import pandas as pd
 
+from bench.report.paired import ERROR_ROPES
+
 # (id, title) of every section, in page order; the browser test checks each is present
 SECTIONS = (
     ("verdict", "Verdict"),
@@ -118,7 +120,7 @@ def figure_html(png: Path, caption: str) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
     return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
             f'<figcaption>{html.escape(caption)} <code>{html.escape(Path(png).name)}</code> '
-            f'(PDF beside it)</figcaption></figure>')
+            + ("(PDF beside it)" if Path(png).with_suffix(".pdf").exists() else "") + "</figcaption></figure>")
 
 
 def paragraph(text: str, cls: str | None = None) -> str:
@@ -236,8 +238,7 @@ def calibration_table(runs: pd.DataFrame, problem: str) -> pd.DataFrame:
     """Median calibration errors per optimiser of one problem, the reference calibration's as a
     row (from ``ref.<error>``), from the runs' final best points; empty without truth."""
     rows = runs[(runs["problem"] == problem) & runs["valid"]]
-    errors = [c for c in rows.columns if c.startswith("m.") and c.endswith(("_deg", "_px", "_cm"))
-              and rows[c].notna().any()]
+    errors = [f"m.{e}" for e in ERROR_ROPES if f"m.{e}" in rows.columns and rows[f"m.{e}"].notna().any()]
     if not errors:
         return pd.DataFrame()
     table = rows.groupby("optimizer")[errors].median().rename(columns=lambda c: c[2:]).reset_index()

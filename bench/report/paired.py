@@ -292,6 +292,10 @@ def calibration_ranks(paired: Paired, problem: str) -> pd.Series:
     return pd.concat([ranks_of(paired.by_question[q], problem) for q in errors], axis=1).mean(axis=1)
 
 
+def _needed_text(n: float) -> str:
+    return "" if np.isnan(n) else (f"> {res.N_CAP}" if np.isinf(n) else f"{int(n)}")
+
+
 def _fmt(value) -> str:
     return "" if value is None or (isinstance(value, float) and np.isnan(value)) else f"{value:.4g}"
 
@@ -327,7 +331,7 @@ def page_leaderboard(paired: Paired, runs: pd.DataFrame, problem: str) -> pd.Dat
                      "leader" if name == leader else (one["verdict"] if one is not None else "untestable"),
                      _fmt(one["p_adjusted"]) if one is not None else "",
                      _fmt(one["p_equal"]) if one is not None else "",
-                     (_fmt(one["n_needed"]) if one is not None and one["verdict"] == "undecided" else ""),
+                     (_needed_text(one["n_needed"]) if one is not None and one["verdict"] == "undecided" else ""),
                      "" if name == REFERENCE or name not in ref.index else ref.loc[name, "verdict"],
                      _fmt(cal.get(name, np.nan)), int(ranks.loc[name, "n_failed"])])
     return pd.DataFrame(rows, columns=PAGE_COLUMNS)

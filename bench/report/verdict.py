@@ -329,7 +329,7 @@ def cd_diagram(ranks: pd.Series | Mapping[str, float], cd: float, path: str | Pa
     # the diagram takes a p-matrix: 0 (different) where the rank gap exceeds the CD, else 1
     sig = pd.DataFrame(np.where(gap > cd, 0.0, 1.0), index=ranks.index, columns=ranks.index)
     fig = Figure(figsize=(6.0, 1.4 + 0.25 * len(ranks)))
-    fig.subplots_adjust(left=0.12, right=0.88, top=0.62, bottom=0.04)  # room for the CD bar above
+    fig.subplots_adjust(left=0.2, right=0.8, top=0.62, bottom=0.04)  # room for the CD bar and the labels
     ax = fig.add_subplot()
     sp.critical_difference_diagram(ranks, sig, ax=ax, alpha=0.05)
     # the CD bar drawn here, not by the library, whose bar sits on the rank tick labels
