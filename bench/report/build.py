@@ -140,12 +140,17 @@ def _stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def _settings(roots: list[Path], records: pd.DataFrame, runs: pd.DataFrame, overrides: dict) -> VerdictSettings:
-    """The sweep's verdict settings with the command line's overrides, checked against the records."""
+def _settings(roots: list[Path], records: pd.DataFrame, runs: pd.DataFrame,
+              overrides: dict) -> tuple[VerdictSettings, pd.DataFrame]:
+    """The sweep's verdict settings with the command line's overrides, checked against the
+    records, and ``runs`` with the pairing key's column when it is another record field."""
     problems = sorted(set(runs["problem"]) | set(runs["problem_name"]))
     settings = check_settings({**sweep_settings(roots, records), **overrides}, problems)
+    if settings.key not in runs.columns and settings.key in records.columns:
+        runs = runs.assign(**{settings.key: runs["job_dir"].map(
+            dict(zip(records["job_dir"].astype(str), records[settings.key])))})
     pairing_key(runs, settings)  # a key the records lack: SettingsError before any work
-    return settings
+    return settings, runs
 
 
 def _verdict_tables(paired) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -215,7 +220,7 @@ def build_report(dirs, out=None, *, verdict: dict | None = None, seed: int = 0, 
     started = time.perf_counter()
     records = load_job_records(roots)  # bad input stops here, before any output
     runs = add_reference_errors(runs_table(records), records)
-    settings = _settings(roots, records, runs, overrides)
+    settings, runs = _settings(roots, records, runs, overrides)
     log(f"report: {len(runs)} job records under {', '.join(map(str, roots))}; paired verdicts, leaderboard, "
         "targets and curves")
     job_label = dict(zip(records["job_dir"].astype(str), records["job"]))
@@ -279,6 +284,8 @@ def _md_figure(path: Path | None, caption: str, out: Path) -> list[str]:
 
 
 def _markdown(runs, box, pages, avg, comparisons, ert, targets, figures, tables, out) -> str:
+    from bench.report.html import calibration_table
+
     n_failed = int((~runs["valid"]).sum())
     lines = ["# Benchmark report", "", "## Verdict", ""]
     for problem, sentences in box.items():
@@ -304,6 +311,10 @@ def _markdown(runs, box, pages, avg, comparisons, ert, targets, figures, tables,
         lines += _md_figure(fig.get("cd"), f"critical-difference diagram for {problem}", out)
         lines += _md_figure(fig.get("final"), f"final values for {problem}", out)
         lines += _md_figure(fig["anytime"], f"anytime curves for {problem}", out)
+        cal = calibration_table(runs, problem)
+        if not cal.empty:
+            lines += ["### Calibration errors (median of the final best points; the reference as a row)", "",
+                      _md_table(cal), ""]
         lines += _md_figure(fig.get("scatter"), f"objective against calibration error for {problem}", out)
         lines += ["### Paired comparisons (every question)", "",
                   _md_table(comp[["question", "family", *VERDICT_COLUMNS]] if len(comp) else comp), "",

@@ -353,8 +353,11 @@ def verdict_box(paired: Paired, runs: pd.DataFrame) -> dict[str, list[str]]:
         lines = ([paired.note[0].upper() + paired.note[1:] + "."] if paired.note else [])
         lines += _design_sentences(paired, problem, pd.Series(f))
         unit = str(units.get(problem, "")) if len(units) else ""
+        u = f" {unit}" if unit else ""
+        anchors = runs.loc[runs["problem"] == problem, ["f_reference", "f_truth"]].median()
         lines.append(f"Leader on the objective: {leader} (median f = {_g(_median(runs, problem, leader, OBJECTIVE))}"
-                     f"{' ' + unit if unit else ''}).")
+                     f"{u}; at the reference calibration {_g(anchors['f_reference'])}{u}, at the truth "
+                     f"{_g(anchors['f_truth'])}{u}).")
         comp = objective.comparisons
         comp = comp[comp["problem"] == problem] if not comp.empty else comp
         rope = comp["rope"].iloc[0] if len(comp) else np.nan

@@ -136,15 +136,16 @@ def sweep_settings(roots: list[Path], records: pd.DataFrame) -> dict:
 
 
 def pairing_key(runs: pd.DataFrame, settings: VerdictSettings) -> tuple[str, str]:
-    """(the column to pair on, a note for the report's first lines or ""). A key asked for that
-    the records lack is a SettingsError; the default ``instance`` falls back to ``seed``."""
+    """(the column to pair on, a note for the report's first lines or ""). A key asked for (on
+    the command line or in the sweep's config) that the records lack is a SettingsError; the
+    default ``instance``, not asked for, falls back to ``seed`` for records without it."""
     key = settings.key
     if key in runs.columns and runs[key].notna().all():
         return key, ""
-    if settings.key_given and key != "instance":
-        raise SettingsError(f"verdict.key: the records have no field {key!r} to pair on")
     if settings.key_given and key in runs.columns:
-        raise SettingsError(f"verdict.key: some records lack the field {key!r}")
+        raise SettingsError(f"verdict.key: some records lack the field {key!r} to pair on")
+    if settings.key_given:
+        raise SettingsError(f"verdict.key: the records have no field {key!r} to pair on")
     return FALLBACK_KEY, SEED_NOTE
 
 

@@ -143,7 +143,8 @@ def test_the_page_leaderboard_has_at_most_ten_columns(tmp_path):
 @pytest.mark.parametrize(("args", "key"), [
     (["--test", "ttest"], "verdict.test"), (["--family", "some"], "verdict.family"),
     (["--rope", "-0.1"], "verdict.rope"), (["--rope", "nosuch=0.1"], "verdict.rope.nosuch"),
-    (["--key", "camera"], "verdict.key"), (["--alpha", "1.5"], "verdict.alpha")])
+    (["--key", "camera"], "verdict.key"), (["--key", "instance"], "verdict.key"),
+    (["--alpha", "1.5"], "verdict.alpha")])
 def test_bad_verdict_settings_exit_2_naming_the_key_before_any_work(tmp_path, capsys, args, key):
     for seed in range(2):
         write_job(tmp_path / "runs", "p", "a", seed, [[1.0]])
