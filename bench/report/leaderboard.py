@@ -323,8 +323,9 @@ def _calibration_sentences(paired: Paired, runs: pd.DataFrame, problem: str, lea
         text = f"{q} {_g(_median(runs, problem, leader, 'm.' + q))}"
         if f"ref.{q}" in runs.columns:
             text += f" (reference {_g(_median(runs, problem, REFERENCE, 'm.' + q))}"
-            text += f", {row['verdict'].iloc[0]} than it)" if len(row) and row["verdict"].iloc[0] in (
-                "better", "worse") else (f", {row['verdict'].iloc[0]})" if len(row) else ")")
+            verdict = row["verdict"].iloc[0] if len(row) else ""
+            text += (f"; {leader} {verdict} than the reference, p = {_g(row['p_adjusted'].iloc[0])})"
+                     if verdict in ("better", "worse") else (f"; {verdict} against it)" if verdict else ")"))
         parts.append(text)
     who = "the reference calibration's" if leader == REFERENCE else f"{leader}'s"
     lines = [f"The objective's leader ({who} calibrations, median over instances) is this far from the truth: "

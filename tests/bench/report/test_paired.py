@@ -92,7 +92,7 @@ def test_the_reference_is_a_row_compared_on_instances(tmp_path):
     assert (cal["verdict"] == "worse").all()  # both optimisers' focal lengths are farther from the truth
     box = " ".join(verdict_box(paired, runs)["p"])
     assert "On the objective, better than the reference calibration: good." in box
-    assert "focal_error_px 6 (reference 1.5, worse than it)" in box
+    assert "focal_error_px 6 (reference 1.5; good worse than the reference, p = 0.00391)" in box  # 2*2/2^10
     assert "The two rankings disagree" in box  # the reference is last on f, first on the focal error
     page = page_leaderboard(paired, runs, "p")
     assert REFERENCE in set(page["optimizer"]) and len(page.columns) <= 10
