@@ -43,6 +43,7 @@ ERROR_ROPES = {"rotation_error_deg": 0.05, "focal_error_px": 0.5, "principal_poi
                "translation_error_cm": 0.5, "ray_error_deg": 0.05}
 FALLBACK_KEY = "seed"
 SEED_NOTE = "runs are not paired on instances; seeds used as blocks"
+SETTING_KEYS = ("test", "family", "rope", "alpha", "key")
 
 
 class SettingsError(BenchError):
@@ -75,7 +76,7 @@ def check_settings(raw: Mapping, problems: list[str] | None = None) -> VerdictSe
     """``raw`` (test, family, rope, alpha, key; any may be missing) as checked VerdictSettings;
     ``problems``: the names a ROPE mapping may use (plain names or the leaderboard's labels)."""
     raw = {k: v for k, v in dict(raw).items() if v is not None}
-    unknown = sorted(set(raw) - {"test", "family", "rope", "alpha", "key"})
+    unknown = sorted(set(raw) - set(SETTING_KEYS))
     if unknown:
         raise SettingsError(f"verdict.{unknown[0]}: unknown setting; settings are test, family, rope, alpha, key")
     test, family = str(raw.get("test", "wilcoxon")), str(raw.get("family", "leader"))
@@ -107,7 +108,8 @@ def check_settings(raw: Mapping, problems: list[str] | None = None) -> VerdictSe
 
 def sweep_settings(roots: list[Path], records: pd.DataFrame) -> dict:
     """The ``verdict:`` settings the sweep ran with: the records' ``config.verdict.*`` (first
-    record that has them), else the first root's ``multirun.yaml``; {} when neither says."""
+    record that has them), else the first root's ``multirun.yaml``; {} when neither says. Only
+    ``SETTING_KEYS`` are read: other keys of the sweep's group are the sweep's business."""
     cols = [c for c in records.columns if c.startswith("config.verdict.")]
     out: dict = {}
     for col in cols:
@@ -120,7 +122,7 @@ def sweep_settings(roots: list[Path], records: pd.DataFrame) -> dict:
             else:
                 out[parts[0]] = value
     if out:
-        return out
+        return {k: v for k, v in out.items() if k in SETTING_KEYS}
     import yaml
 
     for root in roots:
@@ -131,7 +133,7 @@ def sweep_settings(roots: list[Path], records: pd.DataFrame) -> dict:
             except yaml.YAMLError:
                 continue
             if isinstance(verdict, Mapping):
-                return dict(verdict)
+                return {k: v for k, v in verdict.items() if k in SETTING_KEYS}
     return {}
 
 
