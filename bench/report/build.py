@@ -187,7 +187,7 @@ def _figures(runs, curves, ecdfs, paired, out: Path) -> dict[str, dict[str, Path
         fig = {"anytime": anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png", levels),
                "ecdf": ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"),
                "final": final_values_figure(frame, problem, out / "figures" / f"final_{slug}.png", unit, REFERENCE)}
-        if objective is not None:
+        if objective is not None and problem in set(objective.friedman["problem"]):
             row = objective.friedman.set_index("problem").loc[problem]
             ranks = objective.ranks[objective.ranks["problem"] == problem].set_index("optimizer")["mean_rank"]
             if len(ranks) >= 2 and np.isfinite(row["cd"]):

@@ -346,10 +346,8 @@ def verdict_box(paired: Paired, runs: pd.DataFrame) -> dict[str, list[str]]:
     """problem -> the verdict box's sentences, generated from the numbers (design and floor first)."""
     out = {}
     objective = paired.by_question.get(OBJECTIVE)
-    if objective is None:
-        return out
     units = runs.groupby("problem")["f_unit"].first() if "f_unit" in runs.columns else {}
-    for f in objective.friedman.to_dict("records"):
+    for f in objective.friedman.to_dict("records") if objective is not None else []:
         problem, leader = f["problem"], f["leader"]
         lines = ([paired.note[0].upper() + paired.note[1:] + "."] if paired.note else [])
         lines += _design_sentences(paired, problem, pd.Series(f))
@@ -374,4 +372,7 @@ def verdict_box(paired: Paired, runs: pd.DataFrame) -> dict[str, list[str]]:
                                  .replace("undecided than", "undecided against"))
         lines += _calibration_sentences(paired, runs, problem, leader)
         out[problem] = lines
-    return out
+    for problem in sorted(set(runs["problem"]) - set(out)):
+        out[problem] = ([paired.note[0].upper() + paired.note[1:] + "."] if paired.note else []) + [
+            f"No {paired.key} is shared by every row of this problem: no paired verdict (see runs.csv)."]
+    return dict(sorted(out.items()))

@@ -307,7 +307,7 @@ def page_leaderboard(paired: Paired, runs: pd.DataFrame, problem: str) -> pd.Dat
     """The on-page leaderboard of one problem (``PAGE_COLUMNS``, at most 10; the full table is
     leaderboard.csv): every optimiser and the reference row, best mean rank first."""
     objective = paired.by_question.get(OBJECTIVE)
-    if objective is None:
+    if objective is None or problem not in set(objective.friedman["problem"]):
         return pd.DataFrame(columns=PAGE_COLUMNS)
     ranks = objective.ranks[objective.ranks["problem"] == problem].set_index("optimizer")
     leader = objective.friedman.set_index("problem").loc[problem, "leader"]

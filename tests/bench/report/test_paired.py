@@ -168,3 +168,11 @@ def test_settings_come_from_the_sweep_and_the_options_override(tmp_path):
     assert (pd.read_csv(tmp_path / "o2" / "verdicts.csv")["rope"] == 0.0).all()
     with pytest.raises(SettingsError, match="verdict.key"):
         build_report([root], tmp_path / "o3", verdict={"key": "camera"}, paper_tables=False, log=None)
+
+
+def test_a_problem_without_a_shared_instance_still_reports_and_says_why(tmp_path):
+    for seed in range(2):
+        write_job(tmp_path, "p", "a", seed, [[1.0 + seed]])
+        write_job(tmp_path, "p", "b", seed + 2, [[2.0 + seed]])
+    text = build_report([tmp_path], tmp_path / "out", paper_tables=False, log=None).read_text()
+    assert "No seed is shared by every row of this problem: no paired verdict" in text
