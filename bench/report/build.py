@@ -2,17 +2,32 @@
 
 Usage::
 
-    python -m bench.report DIR... [--out OUT] [--pairing none|seed] [--alpha 0.05] [--no-tables] [--recompute]
+    python -m bench.report DIR... [--out OUT] [--test wilcoxon|nemenyi|conover] [--family leader|all]
+        [--rope X | --rope PROBLEM=X,...] [--alpha 0.05] [--key instance] [--no-tables] [--recompute]
 
 finds every job folder (one holding ``record.json``) under the DIRs and writes into OUT
 (default: the first DIR's ``report/``):
 
-- ``leaderboard.csv`` — one row per (problem, optimizer), see ``bench.leaderboard``;
-- ``runs.csv`` — one row per job; ``pairwise.csv``, ``versus_leader.csv``, ``ranks.csv``
-  (average rank over problems) — see ``bench.stats``;
+- ``report.html`` and ``report.md`` open with the **verdict box**: plain sentences generated from
+  the paired verdicts (``bench.report.paired``, ``bench.report.leaderboard.verdict_box``): the
+  design and, when it cannot reach alpha, its floor; the leader and who ties with it; who is
+  significantly worse or better (Holm-adjusted p); who is practically equal (ROPE); what is
+  undecided and how many instances would decide it; how the optimisers and the best
+  calibrations compare with the reference calibration and the truth; where the objective's and
+  the calibration error's rankings disagree. The verdict settings are the sweep's (``verdict:``
+  in its config) unless the options above override them;
+- ``leaderboard.csv`` — one row per (problem, optimizer), see ``bench.report.leaderboard`` (the
+  page shows ten of its columns: ``bench.report.paired.PAGE_COLUMNS``);
+- ``verdicts.csv`` — every paired comparison of every question (the objective ``best_f`` and each
+  calibration error), ``family`` "posthoc" (against the leader, or all pairs) or "vs_reference";
+  ``friedman.csv`` — the omnibus test, leader, CD and design floor per question and problem;
+- ``runs.csv`` — one row per job (with ``ref.<error>``, the reference's errors on its instance);
+  ``ranks.csv`` (average rank by median over problems);
 - ``targets.csv``, ``ert.csv``, ``ecdf.csv`` — fixed targets, ERT and runtime ECDFs, see
   ``bench.targets``; ``curves.csv`` — anytime curves, see ``bench.curves``;
-- ``figures/anytime_<problem>.png``, ``figures/ecdf_<problem>.png`` (150 dpi, PDF beside);
+- ``figures/``: per problem ``cd_`` (critical-difference diagram), ``final_`` (final values per
+  optimiser and the reference), ``anytime_``, ``scatter_`` (objective against calibration error,
+  where the truth is known) and ``ecdf_<problem>.png`` (150 dpi; PDF beside all but ``cd_``);
 - ``tables/`` — the paper's Tables 1–3 and figures (``bench.report.paper.tables``), when the records hold a
   VIO problem (``--no-tables`` skips them). What they need from the filter is computed once
   and stored in ``DIR/artifacts/`` (``bench.report.paper.artifacts``); later reports read it back and never
@@ -25,13 +40,15 @@ finds every job folder (one holding ``record.json``) under the DIRs and writes i
   ``bench.report.evaluations``; ``pandas.read_parquet`` reads it in one call;
 - ``iohprofiler/`` — the runs in the IOHprofiler format that IOHanalyzer loads (one function per
   problem setting, one algorithm per optimiser, one run per job), written by ``ioh``'s logger,
-  see ``bench.report.iohprofiler``.
+  see ``bench.report.evaluations``.
 
 Same records, same options → byte-identical CSV, Markdown, HTML, PNG, Parquet and IOHprofiler files: nothing written
 depends on the time, the machine or where the folders are (job folders are named relative to
 the DIR they were found in; the provenance shown is the records'). Progress goes to stderr,
 the path of report.md to stdout. Bad input (a missing DIR, no records, a corrupt record or
-log, ``--alpha`` outside (0, 1)) ends with one message on stderr and exit code 2.
+log, an unknown test or family, a negative ROPE or one for an unknown problem, ``--alpha``
+outside (0, 1), a pairing key the records lack) ends with one message on stderr naming the key
+and exit code 2, before any output.
 """
 
 from __future__ import annotations
@@ -42,21 +59,32 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import pandas as pd
 
 from bench.errors import BenchError
 from bench.records import find_job_dirs, read_record
 from bench.report.curves import anytime_curves, run_traces
-from bench.report.figures import anytime_figure, ecdf_figure
-from bench.report.leaderboard import leaderboard, runs_table
-from bench.report.stats import average_ranks, pairwise, ranks, summary, versus_leader
+from bench.report.figures import anytime_figure, ecdf_figure, final_values_figure, objective_error_figure
+from bench.report.leaderboard import leaderboard, runs_table, verdict_box
+from bench.report.paired import (
+    OBJECTIVE,
+    REFERENCE,
+    VerdictSettings,
+    add_reference_errors,
+    check_settings,
+    page_leaderboard,
+    paired_verdicts,
+    pairing_key,
+    sweep_settings,
+    tidy,
+)
+from bench.report.stats import average_ranks, ranks, summary
 from bench.report.targets import ecdf, ert_table, hitting_times, problem_targets, targets_table
+from bench.report.verdict import cd_diagram
 
 FLOAT_FORMAT = "%.8g"
 MD_FLOAT = ".4g"
-LEADERBOARD_MD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
-                          "best_f_median_ci_low", "best_f_median_ci_high", "ert_main_evals",
-                          "evals_median", "seconds_median", "f_unit", "p_holm_vs_leader", "verdict"]
 
 
 class ReportError(BenchError):
@@ -112,40 +140,88 @@ def _stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def check_alpha(alpha) -> float:
-    """``alpha`` as a float in (0, 1), else ReportError naming the option."""
-    try:
-        value = float(alpha)
-    except (TypeError, ValueError):
-        raise ReportError(f"--alpha must be a number in (0, 1), got {alpha!r}") from None
-    if not 0.0 < value < 1.0:
-        raise ReportError(f"--alpha must be in (0, 1), got {alpha!r}")
-    return value
+def _settings(roots: list[Path], records: pd.DataFrame, runs: pd.DataFrame,
+              overrides: dict) -> tuple[VerdictSettings, pd.DataFrame]:
+    """The sweep's verdict settings with the command line's overrides, checked against the
+    records, and ``runs`` with the pairing key's column when it is another record field."""
+    problems = sorted(set(runs["problem"]) | set(runs["problem_name"]))
+    settings = check_settings({**sweep_settings(roots, records), **overrides}, problems)
+    if settings.key not in runs.columns and settings.key in records.columns:
+        runs = runs.assign(**{settings.key: runs["job_dir"].map(
+            dict(zip(records["job_dir"].astype(str), records[settings.key])))})
+    pairing_key(runs, settings)  # a key the records lack: SettingsError before any work
+    return settings, runs
 
 
-def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, seed: int = 0,
-                 paper_tables: bool = True, recompute: bool = False,
-                 log: Callable[[str], None] | None = _stderr) -> Path:
+def _verdict_tables(paired) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(verdicts.csv: every comparison of every question; friedman.csv: the omnibus per question)."""
+    comps, omni = [], []
+    for family, tables in (("posthoc", paired.by_question), ("vs_reference", paired.vs_reference)):
+        for question, v in tables.items():
+            if not v.comparisons.empty:
+                comps.append(v.comparisons.assign(question=question, family=family))
+            if family == "posthoc":
+                omni.append(v.friedman.assign(question=question))
+    comparisons = pd.concat(comps, ignore_index=True) if comps else pd.DataFrame(columns=["question", "family"])
+    friedman = pd.concat(omni, ignore_index=True) if omni else pd.DataFrame(columns=["question"])
+    first = ["question", "family"]
+    return (comparisons[first + [c for c in comparisons.columns if c not in first]],
+            friedman[["question"] + [c for c in friedman.columns if c != "question"]])
+
+
+def _figures(runs, curves, ecdfs, paired, out: Path) -> dict[str, dict[str, Path]]:
+    """Per problem: its anytime, ECDF, critical-difference, final-value and objective-vs-error figures."""
+    figures, used = {}, set()
+    objective = paired.by_question.get(OBJECTIVE)
+    frame = (tidy(runs, paired.key, OBJECTIVE, "f_reference")[0] if objective is not None
+             else pd.DataFrame(columns=["problem", "optimizer", "value"]))
+    errors = [q for q in paired.by_question if q != OBJECTIVE]
+    for problem in sorted(runs["problem"].unique()):
+        slug = _slug(problem)
+        while slug in used:  # distinct problems whose names reduce to the same file name
+            slug += "_"
+        used.add(slug)
+        anchors = runs.loc[runs["problem"] == problem, ["f_truth", "f_reference"]].median()
+        levels = {"f at truth": anchors["f_truth"], "f at reference": anchors["f_reference"]}
+        unit = runs.loc[runs["problem"] == problem, "f_unit"].iloc[0]
+        fig = {"anytime": anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png", levels),
+               "ecdf": ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"),
+               "final": final_values_figure(frame, problem, out / "figures" / f"final_{slug}.png", unit, REFERENCE)}
+        if objective is not None and problem in set(objective.friedman["problem"]):
+            row = objective.friedman.set_index("problem").loc[problem]
+            ranks = objective.ranks[objective.ranks["problem"] == problem].set_index("optimizer")["mean_rank"]
+            if len(ranks) >= 2 and np.isfinite(row["cd"]):
+                fig["cd"] = cd_diagram(ranks, float(row["cd"]), out / "figures" / f"cd_{slug}.png")
+        if errors:
+            fig["scatter"] = objective_error_figure(runs, problem, errors, out / "figures" / f"scatter_{slug}.png")
+        figures[problem] = fig
+    return figures
+
+
+def build_report(dirs, out=None, *, verdict: dict | None = None, seed: int = 0, paper_tables: bool = True,
+                 recompute: bool = False, log: Callable[[str], None] | None = _stderr) -> Path:
     """Build the whole report from the job folders under ``dirs``; return the path of report.md.
 
     dirs: folders (or job folders) to search; out: output folder (default ``dirs[0]/report``);
-    pairing: "none" (Mann–Whitney) or "seed" (Wilcoxon where seeds match), see ``bench.stats``;
-    alpha: significance level after Holm correction, in (0, 1); seed: for the bootstrap
-    intervals; paper_tables: also build the paper's Tables 1–3 and figures through
+    verdict: overrides of the sweep's verdict settings (test, family, rope, alpha, key; see
+    ``bench.report.paired``); seed: for the bootstrap intervals and the Bayesian test's sampling;
+    paper_tables: also build the paper's Tables 1–3 and figures through
     ``bench.report.paper.tables``; recompute: re-run the VIO for them even when stored artifacts match;
     log: where progress lines go (default stderr; None for silence).
-    Raises ReportError / RecordError / LeaderboardError on bad input.
+    Raises ReportError / RecordError / LeaderboardError / SettingsError on bad input.
     """
     log = log or (lambda message: None)
-    alpha = check_alpha(alpha)
+    overrides = {k: v for k, v in (verdict or {}).items() if v is not None}
+    check_settings(overrides)  # bad options stop here, before the records are read
     roots = [Path(d) for d in dirs]
     if not roots:
         raise ReportError("no input folder given")
     out = Path(out) if out is not None else roots[0] / "report"
     started = time.perf_counter()
     records = load_job_records(roots)  # bad input stops here, before any output
-    runs = runs_table(records)
-    log(f"report: {len(runs)} job records under {', '.join(map(str, roots))}; leaderboard, statistics, "
+    runs = add_reference_errors(runs_table(records), records)
+    settings, runs = _settings(roots, records, runs, overrides)
+    log(f"report: {len(runs)} job records under {', '.join(map(str, roots))}; paired verdicts, leaderboard, "
         "targets and curves")
     job_label = dict(zip(records["job_dir"].astype(str), records["job"]))
     traces = run_traces(runs)
@@ -155,48 +231,41 @@ def build_report(dirs, out=None, *, pairing: str = "none", alpha: float = 0.05, 
     ert = ert_table(hits, targets)
     ecdfs = pd.concat([ecdf(hits, axis) for axis in ("evals", "seconds")], ignore_index=True)
     summ = summary(runs, seed=seed)
-    vs = versus_leader(runs, summ, pairing, alpha)
-    pairs = pairwise(runs, pairing, alpha)
+    paired = paired_verdicts(runs, settings, seed=seed)
+    comparisons, friedman = _verdict_tables(paired)
+    objective = paired.by_question.get(OBJECTIVE)
+    board = leaderboard(runs, summ, objective.comparisons if objective else pd.DataFrame(),
+                        objective.friedman if objective else pd.DataFrame(), ert)
     avg = average_ranks(ranks(summ))
-    board = leaderboard(runs, summ, vs, ert)
 
     out.mkdir(parents=True, exist_ok=True)
     runs_out = runs.assign(job_dir=runs["job_dir"].map(job_label)).rename(columns={"job_dir": "job"})
-    for name, frame in [("leaderboard", board), ("runs", runs_out), ("pairwise", pairs),
-                        ("versus_leader", vs), ("ranks", avg), ("targets", targets_table(targets)),
+    for name, frame in [("leaderboard", board), ("runs", runs_out), ("verdicts", comparisons),
+                        ("friedman", friedman), ("ranks", avg), ("targets", targets_table(targets)),
                         ("ert", ert), ("ecdf", ecdfs), ("curves", curves)]:
         _write_csv(frame, out / f"{name}.csv")
     log("report: evaluations.parquet and the IOHprofiler export")
-    from bench.report.evaluations import write_evaluations
-    from bench.report.iohprofiler import write_iohprofiler
+    from bench.report.evaluations import write_evaluations, write_iohprofiler
 
     write_evaluations(records, runs, out / "evaluations.parquet")
     write_iohprofiler(runs, out / "iohprofiler")
-    log("report: drawing the anytime and ECDF figures")
-    figures, used = {}, set()
-    for problem in sorted(runs["problem"].unique()):
-        slug = _slug(problem)
-        while slug in used:  # distinct problems whose names reduce to the same file name
-            slug += "_"
-        used.add(slug)
-        anchors = runs.loc[runs["problem"] == problem, ["f_truth", "f_reference"]].median()
-        levels = {"f at truth": anchors["f_truth"], "f at reference": anchors["f_reference"]}
-        figures[problem] = (anytime_figure(curves, problem, out / "figures" / f"anytime_{slug}.png", levels),
-                            ecdf_figure(ecdfs, problem, out / "figures" / f"ecdf_{slug}.png"))
+    log("report: drawing the figures")
+    figures = _figures(runs, curves, ecdfs, paired, out)
     if paper_tables:
         log("report: the paper's tables and figures")
     tables = (_paper_tables(roots, out, recompute, log) if paper_tables
               else ([], "Not built: disabled for this report."))
-    text = _markdown(runs_out, board, avg, pairs, ert, targets_table(targets), figures, tables, out,
-                     pairing, alpha)
+    box = verdict_box(paired, runs)
+    pages = {p: page_leaderboard(paired, runs, p) for p in sorted(runs["problem"].unique())}
+    text = _markdown(runs_out, box, pages, avg, comparisons, ert, targets_table(targets), figures, tables, out)
     path = out / "report.md"
     path.write_text(text)
     log("report: writing report.html")
     from bench.report.html import build_page
 
     (out / "report.html").write_text(build_page(
-        roots=roots, records=records, runs=runs_out, board=board, avg=avg, pairs=pairs, vs=vs, ert=ert,
-        targets=targets_table(targets), figures=figures, tables=tables, out=out, pairing=pairing, alpha=alpha,
+        roots=roots, records=records, runs=runs_out, box=box, pages=pages, board=board, avg=avg,
+        comparisons=comparisons, ert=ert, targets=targets_table(targets), figures=figures, tables=tables,
         definitions=_DEFINITIONS))
     log(f"report: done in {time.perf_counter() - started:.1f} s -> {out}")
     return path
@@ -206,79 +275,65 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
-def _markdown(runs, board, avg, pairs, ert, targets, figures, tables, out, pairing, alpha) -> str:
+VERDICT_COLUMNS = ["a", "b", "n", "p_adjusted", "p_equal", "rope", "hl_shift", "verdict", "p_floor", "mdd",
+                   "n_needed"]
+
+
+def _md_figure(path: Path | None, caption: str, out: Path) -> list[str]:
+    return [f"![{caption}]({path.relative_to(out).as_posix()})", ""] if path is not None else []
+
+
+def _markdown(runs, box, pages, avg, comparisons, ert, targets, figures, tables, out) -> str:
+    from bench.report.html import calibration_table
+
     n_failed = int((~runs["valid"]).sum())
-    test = "Mann–Whitney U" if pairing == "none" else "Wilcoxon signed-rank where seeds match, else Mann–Whitney U"
-    lines = [
-        "# Benchmark report",
-        "",
+    lines = ["# Benchmark report", "", "## Verdict", ""]
+    for problem, sentences in box.items():
+        lines += [f"**{problem}**", ""] + [f"- {s}" for s in sentences] + [""]
+    lines += [
         f"Built from {_count(len(runs), 'job record')}: {_count(runs['problem'].nunique(), 'problem')}, "
         f"{_count(runs['optimizer'].nunique(), 'optimiser')}, {n_failed} failed or without result. "
         "Rebuild with `python -m bench.report DIR... --out OUT`; every number below is computed "
         "from the records and is in the CSV files next to this report.",
         "",
-        "Files: [leaderboard.csv](leaderboard.csv) · [runs.csv](runs.csv) · [pairwise.csv](pairwise.csv) · "
-        "[versus_leader.csv](versus_leader.csv) · [ranks.csv](ranks.csv) · [targets.csv](targets.csv) · "
+        "Files: [leaderboard.csv](leaderboard.csv) (every column) · [verdicts.csv](verdicts.csv) · "
+        "[friedman.csv](friedman.csv) · [runs.csv](runs.csv) · "
+        "[ranks.csv](ranks.csv) · [targets.csv](targets.csv) · "
         "[ert.csv](ert.csv) · [ecdf.csv](ecdf.csv) · [curves.csv](curves.csv) · "
         "[evaluations.parquet](evaluations.parquet) (every evaluation) · "
         "[iohprofiler/](iohprofiler/) (for IOHanalyzer)",
         "",
-        "## Average rank over problems",
-        "",
-        "Rank within a problem by median final best f (1 = best, ties averaged); mean over the problems "
-        "an optimiser ran.",
-        "",
-        _md_table(avg),
-        "",
     ]
-    extra_metrics = [c for c in board.columns if c.endswith(("_median", "_rate"))
-                     and not c.startswith(("best_f_", "evals_", "seconds_"))]
     for problem in sorted(runs["problem"].unique()):
-        b = board[board["problem"] == problem]
-        anytime, ecdf_png = figures[problem]
-        lines += [
-            f"## Problem `{problem}`",
-            "",
-            f"### Leaderboard (significance: {test}, Holm-corrected against the leader, alpha = {alpha:g})",
-            "",
-            _md_table(b[[c for c in LEADERBOARD_MD_COLUMNS if c in b.columns]]),
-            "",
-        ]
-        metrics = [c for c in extra_metrics if b[c].notna().any()]
-        if metrics:
-            lines += ["Calibration metrics of the final best point (median over valid runs):", "",
-                      _md_table(b[["optimizer", *metrics]]), ""]
-        lines += [
-            "### Pairwise comparisons",
-            "",
-            "A12 = P(f_a < f_b) + ½P(f_a = f_b), the chance that a run of a ends better than one of b; "
-            "p_holm corrected over all pairs of this problem.",
-            "",
-            _md_table(pairs[pairs["problem"] == problem].drop(columns="problem")),
-            "",
-            "### Fixed targets and expected running time (ERT)",
-            "",
-            _md_table(targets[targets["problem"] == problem].drop(columns="problem")),
-            "",
-            _md_table(ert[ert["problem"] == problem][["optimizer", "target", "n_runs", "n_hit",
-                                                      "ert_evals", "ert_seconds"]]),
-            "",
-            f"![runtime ECDF for {problem}]({ecdf_png.relative_to(out).as_posix()})",
-            "",
-            "### Anytime performance",
-            "",
-            f"![anytime curves for {problem}]({anytime.relative_to(out).as_posix()})",
-            "",
-        ]
+        fig = figures[problem]
+        comp = comparisons[comparisons["problem"] == problem] if len(comparisons) else comparisons
+        lines += [f"## Problem `{problem}`", "", "### Leaderboard", "", _md_table(pages[problem]), ""]
+        lines += _md_figure(fig.get("cd"), f"critical-difference diagram for {problem}", out)
+        lines += _md_figure(fig.get("final"), f"final values for {problem}", out)
+        lines += _md_figure(fig["anytime"], f"anytime curves for {problem}", out)
+        cal = calibration_table(runs, problem)
+        if not cal.empty:
+            lines += ["### Calibration errors (median of the final best points; the reference as a row)", "",
+                      _md_table(cal), ""]
+        lines += _md_figure(fig.get("scatter"), f"objective against calibration error for {problem}", out)
+        lines += ["### Paired comparisons (every question)", "",
+                  _md_table(comp[["question", "family", *VERDICT_COLUMNS]] if len(comp) else comp), "",
+                  "### Fixed targets and expected running time (ERT)", "",
+                  _md_table(targets[targets["problem"] == problem].drop(columns="problem")), "",
+                  _md_table(ert[ert["problem"] == problem][["optimizer", "target", "n_runs", "n_hit",
+                                                            "ert_evals", "ert_seconds"]]), ""]
+        lines += _md_figure(fig["ecdf"], f"runtime ECDF for {problem}", out)
+    lines += ["## Average rank over problems", "",
+              "Rank within a problem by median final best f (1 = best, ties averaged); mean over the problems "
+              "an optimiser ran.", "", _md_table(avg), ""]
     lines += _paper_tables_markdown(tables, out)
     failed = runs[~runs["valid"]][["job", "problem", "optimizer", "seed", "status", "error_type",
                                    "error_message"]]
     lines += ["## Failed runs", "",
-              "Counted in `n_failed`, excluded from tests and medians, included in ERT and ECDF "
-              "as unsuccessful with what they spent.", "", _md_table(failed), ""]
+              "Counted in `n_failed`, ranked last in the paired verdicts, excluded from medians, included in ERT "
+              "and ECDF as unsuccessful with what they spent.", "", _md_table(failed), ""]
     lines += [_DEFINITIONS]
     return "\n".join(lines).rstrip() + "\n"
-
 
 
 def _paper_tables_markdown(tables: tuple[list[Path], str], out: Path) -> list[str]:
@@ -298,12 +353,19 @@ _DEFINITIONS = """## Definitions
 
 - **best f**: the lowest objective value a run evaluated (its record's `best_f`). A run is
   *valid* when its status is "ok" and it has a best f; others count as failed.
-- **Tests**: two-sided Mann–Whitney U on the final best f of valid runs (runs of different
-  optimisers share no randomness: the seed drives only the optimiser). With `--pairing seed`,
-  Wilcoxon signed-rank on seed-matched differences where both optimisers have the same seeds.
-  Fewer than 2 valid runs on a side: no test (p = NaN, "n/a"). All values equal: p = 1.
-  Holm's step-down correction within each problem. Few seeds cannot show significance: the
-  smallest two-sided Mann–Whitney p is 2/C(n+m, n), 0.1 for 3 vs 3 runs, 0.0079 for 5 vs 5.
+- **Verdicts** (``bench.report.paired``, ``bench.report.verdict``): runs are paired on the sweep's
+  instances (records without an instance: on seeds, said in the verdict box's first line); per
+  question and problem, Friedman over all rows (optimisers and the reference calibration), then
+  the post-hoc family (default: each against the leader, the best mean rank; Wilcoxon
+  signed-rank with Holm) and a Bayesian signed-rank test with a ROPE. A verdict is *better* /
+  *worse* (Holm-adjusted p < alpha), *practically equal* (posterior of the ROPE >= 0.95) or
+  *undecided*, with the number of instances that would decide it. Failed runs rank last.
+- **Floor**: n instances with Holm over m tests cannot give p below m·2/2^n (exact signed-rank
+  test); the verdict box says so when that is not below alpha.
+- **Reference row**: f at the reference calibration (the records' ``f_reference``) and its
+  errors against the truth on each instance, tested like an optimiser, and as the control of
+  its own family ("vs reference" in the leaderboard and ``verdicts.csv``).
+- **Calibration rank**: the mean over the calibration errors of each row's mean rank per error.
 - **Median CI**: 95 % percentile bootstrap (2000 resamples, seeded).
 - **Targets**: objective within 1 %, 5 %, 10 % of `f_truth` (f <= f_truth·(1+p)); with
   `f_truth` = 0 the gap from the reference point closed to within p (f <= p·f_reference);

@@ -183,3 +183,61 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
         ax.set_ylabel("fraction of (run, target) pairs hit")
         ax.grid(True, which="both", alpha=0.3)
     return _finish(fig, axes, f"{problem}: runtime ECDF over all fixed targets", path, key)
+
+
+def final_values_figure(frame: pd.DataFrame, problem: str, path: Path, unit: str = "",
+                        reference: str = "reference") -> Path:
+    """Box plot and strip of the final best f per optimiser (and the reference row) of one
+    problem; frame: the objective's tidy ``problem, optimizer, <key>, value`` (``bench.report.paired``)."""
+    data = frame[frame["problem"] == problem]
+    key = figure_key("final", problem, data.to_csv(index=False), unit)
+    if is_current(path, key):
+        return Path(path)
+    order = data.groupby("optimizer")["value"].median().sort_values(kind="stable").index.tolist()
+    colors = _colors([o for o in order if o != reference])
+    fig = Figure(figsize=(max(5.0, 0.9 * len(order) + 2), 4.0))
+    ax = fig.add_subplot()
+    values = [data.loc[data["optimizer"] == o, "value"].dropna().to_numpy(float) for o in order]
+    ax.boxplot(values, showfliers=False, widths=0.5)
+    jitter = np.random.default_rng(0)  # a fixed spread of the strip: the same figure every build
+    for i, (name, v) in enumerate(zip(order, values), start=1):
+        ax.scatter(i + jitter.uniform(-0.15, 0.15, v.size), v, s=12, zorder=3,
+                   color="k" if name == reference else colors[name], marker="*" if name == reference else "o")
+    ax.set_xticks(range(1, len(order) + 1), order, rotation=30, ha="right")
+    finite = np.concatenate(values) if values else np.array([])
+    if finite.size and (finite > 0).all() and finite.max() > 10 * finite.min():
+        _log_scale(ax, "y", finite)
+    ax.set_ylabel(f"final best f{' (' + unit + ')' if unit else ''}")
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.suptitle(f"{problem}: final values (one point per run; reference: star)")
+    fig.subplots_adjust(left=0.12, right=0.97, bottom=0.25, top=0.9)
+    return save_figure(fig, path, key=key)
+
+
+def objective_error_figure(runs: pd.DataFrame, problem: str, errors: list[str], path: Path) -> Path:
+    """Final best f against each calibration error (one panel per error, one point per job,
+    coloured by optimiser), the reference calibration of each instance as a black star.
+    runs: ``runs_table`` with ``m.<error>`` and, where known, ``ref.<error>`` columns."""
+    data = runs[(runs["problem"] == problem) & runs["valid"]]
+    cols = ["optimizer", "best_f", "f_reference", *[f"m.{e}" for e in errors],
+            *[f"ref.{e}" for e in errors if f"ref.{e}" in data.columns]]
+    key = figure_key("scatter", problem, data[cols].to_csv(index=False))
+    if is_current(path, key):
+        return Path(path)
+    colors = _colors(list(data["optimizer"].unique()))
+    fig = Figure(figsize=(4.0 * max(1, len(errors)) + 1.0, 3.8))
+    axes = np.atleast_1d(fig.subplots(1, max(1, len(errors)), sharey=True))
+    for ax, error in zip(axes, errors):
+        for name, g in data.groupby("optimizer", sort=True):
+            ax.scatter(g[f"m.{error}"], g["best_f"], s=14, color=colors[name], label=name)
+        if f"ref.{error}" in data.columns:
+            ax.scatter(data[f"ref.{error}"], data["f_reference"], s=60, marker="*", color="k", label="reference")
+        ax.set_xlabel(error)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("final best f")
+    handles, labels = axes[0].get_legend_handles_labels()
+    unique = dict(zip(labels, handles))
+    axes[0].legend(unique.values(), unique.keys(), fontsize="small")
+    fig.suptitle(f"{problem}: objective against calibration error (one point per run)")
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.15, top=0.88, wspace=0.08)
+    return save_figure(fig, path, key=key)

@@ -19,15 +19,17 @@ from pathlib import Path
 import jinja2
 import pandas as pd
 
+from bench.report.paired import ERROR_ROPES
+
 # (id, title) of every section, in page order; the browser test checks each is present
 SECTIONS = (
-    ("overview", "Overview"),
+    ("verdict", "Verdict"),
     ("leaderboard", "Leaderboard"),
-    ("statistics", "Statistics"),
-    ("targets", "Fixed targets, ERT and ECDF"),
     ("anytime", "Anytime performance"),
-    ("paper-tables", "The paper's tables beside ours"),
     ("calibration-errors", "Calibration errors"),
+    ("statistics", "Paired comparisons"),
+    ("targets", "Fixed targets, ERT and ECDF"),
+    ("paper-tables", "The paper's tables beside ours"),
     ("figures", "Figures"),
     ("failed", "Failed runs"),
     ("provenance", "Provenance"),
@@ -48,6 +50,9 @@ th.asc::after{content:" \\25B2"}th.desc::after{content:" \\25BC"}
 figure{margin:1em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:.85em;color:#555}.note{color:#555;font-size:.9em}.label{font-weight:600}
 code{background:#f4f4f4;padding:0 .2em}#check{font-size:.8em;color:#777;margin-top:2em}
+.box{border:2px solid #0b57d0;border-radius:6px;padding:.2em 1em;margin:1em 0;background:#f6f9ff}
+.box li{margin:.25em 0}.pair{display:flex;flex-wrap:wrap;gap:1em}.pair figure{flex:1 1 560px}
+details{margin:.6em 0}summary{cursor:pointer;font-weight:600}
 """
 
 # Sort a table by a header click (numbers numerically, text alphabetically; click again to
@@ -115,7 +120,7 @@ def figure_html(png: Path, caption: str) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
     return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
             f'<figcaption>{html.escape(caption)} <code>{html.escape(Path(png).name)}</code> '
-            f'(PDF beside it)</figcaption></figure>')
+            + ("(PDF beside it)" if Path(png).with_suffix(".pdf").exists() else "") + "</figcaption></figure>")
 
 
 def paragraph(text: str, cls: str | None = None) -> str:
@@ -155,19 +160,6 @@ def render(title: str, bodies: dict[str, str]) -> str:
 
 
 # --- the report's sections ------------------------------------------------------------------
-
-LEADERBOARD_COLUMNS = ["rank", "optimizer", "n_runs", "n_failed", "best_f_median", "best_f_iqr",
-                       "best_f_median_ci_low", "best_f_median_ci_high", "main_target", "ert_main_evals",
-                       "main_target_threshold", "evals_median", "seconds_median", "f_unit", "ci_level",
-                       "p_holm_vs_leader", "verdict"]
-
-
-def _leaderboard_columns(board: pd.DataFrame) -> list[str]:
-    """The leaderboard's own columns (its schema is ``bench.leaderboard``'s): the usual ones first,
-    then every other column but the problem, in the leaderboard's order."""
-    first = [c for c in LEADERBOARD_COLUMNS if c in board.columns]
-    return first + [c for c in board.columns if c not in first and c != "problem"]
-
 
 def _problems(runs: pd.DataFrame) -> list[str]:
     return sorted(runs["problem"].unique())
@@ -237,50 +229,72 @@ def _paper_table(path: Path, index: bool) -> str:
     return paragraph(caption, "label") + table_html(frame, index=index)
 
 
-def build_page(*, roots, records, runs, board, avg, pairs, vs, ert, targets, figures, tables, out, pairing,
-               alpha, definitions: str) -> str:
+def collapsed(summary: str, body: str) -> str:
+    """``body`` folded under a one-line ``summary`` (long tables and figure grids)."""
+    return f"<details><summary>{html.escape(summary)}</summary>{body}</details>"
+
+
+def calibration_table(runs: pd.DataFrame, problem: str) -> pd.DataFrame:
+    """Median calibration errors per optimiser of one problem, the reference calibration's as a
+    row (from ``ref.<error>``), from the runs' final best points; empty without truth."""
+    rows = runs[(runs["problem"] == problem) & runs["valid"]]
+    errors = [f"m.{e}" for e in ERROR_ROPES if f"m.{e}" in rows.columns and rows[f"m.{e}"].notna().any()]
+    if not errors:
+        return pd.DataFrame()
+    table = rows.groupby("optimizer")[errors].median().rename(columns=lambda c: c[2:]).reset_index()
+    ref = {c[2:]: rows[f"ref.{c[2:]}"].median() for c in errors if f"ref.{c[2:]}" in rows.columns}
+    if ref:
+        table = pd.concat([table, pd.DataFrame([{"optimizer": "reference", **ref}])], ignore_index=True)
+    return table
+
+
+def _figure(fig: dict, name: str, caption: str) -> str:
+    return figure_html(fig[name], caption) if name in fig else ""
+
+
+def build_page(*, roots, records, runs, box, pages, board, avg, comparisons, ert, targets, figures, tables,
+               definitions: str) -> str:
     """The HTML of report.html from the report's frames and files (see ``bench.report``)."""
-    test = "Mann–Whitney U" if pairing == "none" else "Wilcoxon signed-rank where seeds match, else Mann–Whitney U"
     problems = _problems(runs)
     n_failed = int((~runs["valid"]).sum())
     bodies = {}
-    bodies["overview"] = paragraph(
+    verdict = [paragraph(
         f"{len(runs)} job records: {len(problems)} problem(s) ({', '.join(problems)}), "
-        f"{runs['optimizer'].nunique()} optimiser(s), {n_failed} failed or without result. Every number "
-        "is computed from the records and is in the CSV files beside this page; click a table header to sort.") + \
-        "<h3>Average rank over problems</h3>" + table_html(avg)
-
-    extra = [c for c in board.columns
-             if c.endswith(("_median", "_rate")) and not c.startswith(("best_f_", "evals_", "seconds_"))]
+        f"{runs['optimizer'].nunique()} optimiser(s), {n_failed} failed or without result. Every sentence "
+        "below is generated from the numbers in the CSV files beside this page.", "note")]
     lead, stats, targ, anytime, calerr = [], [], [], [], []
     for problem in problems:
-        b = board[board["problem"] == problem]
-        anytime_png, ecdf_png = figures[problem]
+        fig = figures[problem]
+        items = "".join(f"<li>{inline(s)}</li>" for s in box.get(problem, []))
+        verdict.append(f'<div class="box"><h3>{html.escape(problem)}</h3><ul>{items}</ul></div>'
+                       + '<div class="pair">' + _figure(fig, "cd", f"{problem}: critical-difference diagram "
+                       "(mean ranks; a bar joins rows closer than the CD)")
+                       + _figure(fig, "final", f"{problem}: final best f per optimiser and the reference")
+                       + "</div>")
         lead.append(f"<h3>{html.escape(problem)}</h3>" + paragraph(
-            f"best f in the problem's objective units; significance: {test}, Holm-corrected against the "
-            f"leader, alpha = {alpha:g}.", "note") + table_html(b[_leaderboard_columns(b)]))
-        stats.append(f"<h3>{html.escape(problem)}: pairwise comparisons</h3>"
-                     + paragraph("A12 = P(f_a < f_b) + ½P(f_a = f_b); p_holm corrected over all pairs of this "
-                                 "problem.", "note")
-                     + table_html(pairs[pairs["problem"] == problem].drop(columns="problem"))
-                     + f"<h3>{html.escape(problem)}: against the leader</h3>"
-                     + table_html(vs[vs["problem"] == problem].drop(columns="problem")))
-        targ.append(f"<h3>{html.escape(problem)}</h3>"
-                    + table_html(targets[targets["problem"] == problem].drop(columns="problem"))
-                    + table_html(ert[ert["problem"] == problem][["optimizer", "target", "n_runs", "n_hit",
-                                                                 "success_rate", "ert_evals", "ert_seconds"]])
-                    + figure_html(ecdf_png, f"{problem}: runtime ECDF over all fixed targets"))
-        anytime.append(figure_html(anytime_png, f"{problem}: best-so-far objective, median and IQR over seeds"))
-        metrics = [c for c in extra if b[c].notna().any()]
-        if metrics:
-            calerr.append(f"<h3>{html.escape(problem)}: calibration metrics of the final best point</h3>"
-                          + paragraph("median over valid runs (from the records)", "note")
-                          + table_html(b[["optimizer", *metrics]]))
+            "Ten columns; every column of every row is in leaderboard.csv. Verdicts are paired on instances "
+            "against the leader (and against the reference calibration).", "note") + table_html(pages[problem]))
+        comp = comparisons[comparisons["problem"] == problem] if len(comparisons) else comparisons
+        stats.append(collapsed(f"{problem}: {len(comp)} paired comparisons (all questions)",
+                               table_html(comp.drop(columns="problem") if len(comp) else comp)))
+        targ.append(collapsed(f"{problem}: fixed targets, ERT and the runtime ECDF",
+                              table_html(targets[targets["problem"] == problem].drop(columns="problem"))
+                              + table_html(ert[ert["problem"] == problem][["optimizer", "target", "n_runs", "n_hit",
+                                                                           "success_rate", "ert_evals",
+                                                                           "ert_seconds"]])
+                              + figure_html(fig["ecdf"], f"{problem}: runtime ECDF over all fixed targets")))
+        anytime.append(figure_html(fig["anytime"], f"{problem}: best-so-far objective, median and IQR over runs"))
+        cal = calibration_table(runs, problem)
+        if not cal.empty:
+            calerr.append(f"<h3>{html.escape(problem)}: calibration errors of the final best points</h3>"
+                          + paragraph("median over valid runs; the reference calibration's own errors as a row",
+                                      "note") + table_html(cal)
+                          + _figure(fig, "scatter", f"{problem}: objective against calibration error"))
+    bodies["verdict"] = "".join(verdict) + "<h3>Average rank over problems</h3>" + table_html(avg)
     bodies["leaderboard"] = "".join(lead)
     bodies["statistics"] = "".join(stats)
     bodies["targets"] = "".join(targ)
     bodies["anytime"] = "".join(anytime)
-
     paths, note = tables
     paths = [Path(p) for p in paths]
     by_stem = _tables_by_stem(paths)
@@ -300,7 +314,8 @@ def build_page(*, roots, records, runs, board, avg, pairs, vs, ert, targets, fig
                             ("convergence_", "best-so-far calibration per seed")):
         for png in (p for p in pngs if p.name.startswith(prefix)):
             figs.append(figure_html(png, caption))
-    bodies["figures"] = "".join(figs) or paragraph(note or "(no figures)", "note")
+    bodies["figures"] = (collapsed(f"{len(figs)} figures of the paper's tables", "".join(figs)) if figs
+                         else paragraph(note or "(no figures)", "note"))
 
     failed = runs[~runs["valid"]][["job", "problem", "optimizer", "seed", "status", "error_type", "error_message"]]
     bodies["failed"] = paragraph("Counted in n_failed, excluded from tests and medians, included in ERT and ECDF "

@@ -143,13 +143,13 @@ def leader_of(block: pd.DataFrame) -> str:
     return str(order.sort_values(["rank", "mean"], kind="stable").index[0])
 
 
-def _pairs(block: pd.DataFrame, family: str) -> list[tuple[str, str]]:
+def _pairs(block: pd.DataFrame, family: str, against: str | None = None) -> list[tuple[str, str]]:
     if family not in res.FAMILIES:
         raise StatsError(f"family must be one of {res.FAMILIES}, got {family!r}")
     ranks = mean_ranks(block).sort_values(kind="stable")
     names = [str(n) for n in ranks.index]
-    if family == "leader":
-        leader = leader_of(block)
+    if family == "leader" or against is not None:  # a fixed control (e.g. the reference) instead of the leader
+        leader = leader_of(block) if against is None else against
         return [(a, leader) for a in names if a != leader]
     return [(names[i], names[j]) for i in range(len(names)) for j in range(i + 1, len(names))]
 
@@ -168,12 +168,14 @@ def _library_p(block: pd.DataFrame, posthoc: str) -> pd.DataFrame:
     return pd.DataFrame(p.to_numpy(float), index=block.columns, columns=block.columns)
 
 
-def posthoc(block: pd.DataFrame, family: str = "leader", test: str = "wilcoxon") -> pd.DataFrame:
+def posthoc(block: pd.DataFrame, family: str = "leader", test: str = "wilcoxon",
+            against: str | None = None) -> pd.DataFrame:
     """Post-hoc comparisons of one problem's block: columns a, b, n, statistic, p_value (raw),
-    p_adjusted (Holm over the family; Nemenyi's own adjustment for "nemenyi"), family_size."""
+    p_adjusted (Holm over the family; Nemenyi's own adjustment for "nemenyi"), family_size;
+    ``against``: compare every other optimiser with this column instead of the leader."""
     if test not in POSTHOCS:
         raise StatsError(f"posthoc must be one of {POSTHOCS}, got {test!r}")
-    pairs = _pairs(block, family)
+    pairs = _pairs(block, family, against)
     values = impute_failures(block)
     library = _library_p(block, test) if test != "wilcoxon" else None
     rows = []
@@ -237,7 +239,7 @@ def _seed(seed: int, *names: str) -> int:
 
 def compare_block(block: pd.DataFrame, rope: float | None = 0.0, family: str = "leader",
                   posthoc_test: str = "wilcoxon", alpha: float = 0.05, seed: int = 0,
-                  cap: int = res.N_CAP, problem: str = "") -> pd.DataFrame:
+                  cap: int = res.N_CAP, problem: str = "", against: str | None = None) -> pd.DataFrame:
     """Verdicts of one problem's block (see the module doc): the ``posthoc`` columns plus
     mean_rank_a/b, n_failed_a/b, hl_shift (Hodges-Lehmann estimate of a - b), p_better,
     p_equal, p_worse, rope, verdict, and resolution p_floor, mdd, n_needed."""
@@ -245,7 +247,7 @@ def compare_block(block: pd.DataFrame, rope: float | None = 0.0, family: str = "
         raise StatsError(f"alpha must be in (0, 1), got {alpha!r}")
     if rope is not None and not (np.isfinite(rope) and rope >= 0):
         raise StatsError(f"rope must be a finite number >= 0 (or None), got {rope!r}")
-    table = posthoc(block, family, posthoc_test)
+    table = posthoc(block, family, posthoc_test, against)
     values, ranks = impute_failures(block), mean_ranks(block)
     rows = []
     for row in table.to_dict("records"):
@@ -281,9 +283,11 @@ def _rope_for(rope: float | Mapping[str, float] | None, problems: list[str]) -> 
 
 def verdicts(frame: pd.DataFrame, key: str = "instance", rope: float | Mapping[str, float] | None = 0.0,
              family: str = "leader", posthoc_test: str = "wilcoxon", alpha: float = 0.05, seed: int = 0,
-             cap: int = res.N_CAP) -> Verdicts:
+             cap: int = res.N_CAP, against: str | None = None) -> Verdicts:
     """Friedman, mean ranks, CD and post-hoc verdicts of every problem of a tidy frame
-    (``problem, optimizer, <key>, value``); ``rope``: one value or one per problem."""
+    (``problem, optimizer, <key>, value``); ``rope``: one value or one per problem; ``against``:
+    every optimiser against this row (k - 1 tests, Holm) instead of the leader, in the problems
+    that have it."""
     if "problem" not in frame.columns:
         raise StatsError(f"the frame lacks the columns ['problem'] (pairing key {key!r})")
     problems = sorted(str(p) for p in frame["problem"].unique())
@@ -301,8 +305,8 @@ def verdicts(frame: pd.DataFrame, key: str = "instance", rope: float | Mapping[s
         for optimizer, r in mean_ranks(block).items():
             rank_rows.append({"problem": problem, "optimizer": optimizer, "mean_rank": r,
                               "n_failed": int(block[optimizer].isna().sum())})
-        if k >= 2:
-            table = compare_block(block, ropes[problem], family, posthoc_test, alpha, seed, cap, problem)
+        if k >= 2 and (against is None or against in block.columns):
+            table = compare_block(block, ropes[problem], family, posthoc_test, alpha, seed, cap, problem, against)
             tables.append(table.assign(problem=problem))
     comparisons = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
     if not comparisons.empty:
@@ -325,7 +329,7 @@ def cd_diagram(ranks: pd.Series | Mapping[str, float], cd: float, path: str | Pa
     # the diagram takes a p-matrix: 0 (different) where the rank gap exceeds the CD, else 1
     sig = pd.DataFrame(np.where(gap > cd, 0.0, 1.0), index=ranks.index, columns=ranks.index)
     fig = Figure(figsize=(6.0, 1.4 + 0.25 * len(ranks)))
-    fig.subplots_adjust(left=0.12, right=0.88, top=0.62, bottom=0.04)  # room for the CD bar above
+    fig.subplots_adjust(left=0.2, right=0.8, top=0.62, bottom=0.04)  # room for the CD bar and the labels
     ax = fig.add_subplot()
     sp.critical_difference_diagram(ranks, sig, ax=ax, alpha=0.05)
     # the CD bar drawn here, not by the library, whose bar sits on the rank tick labels

@@ -33,6 +33,8 @@ def write_job(
     problem_params: dict | None = None,
     optimizer_params: dict | None = None,
     f_unit: str | None = None,
+    instance: int | None = None,
+    reference_metrics: dict | None = None,
 ) -> Path:
     """Write one job folder under ``root`` and return its path.
 
@@ -41,10 +43,13 @@ def write_job(
     metrics_batches: per batch, ``{metric name: values}`` aligned with that batch's f values.
     status: "ok" or "failed"; a failed job's ``error`` defaults to a RuntimeError entry.
     problem_params / optimizer_params: the config's ``params`` sections (they and the budget are
-    the job identity the leaderboard groups by); f_unit: the record's unit of f.
+    the job identity the leaderboard groups by); f_unit: the record's unit of f; instance: the
+    pairing unit the run belongs to (a record field ``instance``; None: an older record without
+    it); reference_metrics: the reference calibration's errors on that instance.
     The point X of each evaluation is ``[f, seed]`` (2-D space named a, b): content is irrelevant here.
     """
-    job = Path(root) / (name or f"{problem}/{optimizer}/seed{seed}")
+    default = f"{problem}/{optimizer}/" + (f"seed{seed}" if instance is None else f"instance{instance}")
+    job = Path(root) / (name or default)
     log = EvalLog(job)
     t_batches = t_batches if t_batches is not None else [float(i + 1) for i in range(len(f_batches))]
     evals_total = 0
@@ -86,5 +91,9 @@ def write_job(
         "versions": {"numpy": "x"}, "git_commit": "0" * 40, "machine": "test",
         "started_utc": "2026-01-01T00:00:00Z", "ended_utc": "2026-01-01T00:01:00Z",
     }
+    if instance is not None:
+        record["instance"] = instance
+    if reference_metrics is not None:
+        record["reference_metrics"] = reference_metrics
     write_json_atomic(job / RECORD, record)
     return job

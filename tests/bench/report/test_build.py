@@ -9,13 +9,14 @@ import sys
 import types
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from record_factory import write_job
 
 from bench.report.__main__ import main
 from bench.report.build import ReportError, build_report
 
-OUTPUTS = ["leaderboard.csv", "runs.csv", "pairwise.csv", "versus_leader.csv", "ranks.csv",
+OUTPUTS = ["leaderboard.csv", "runs.csv", "verdicts.csv", "friedman.csv", "ranks.csv",
            "targets.csv", "ert.csv", "ecdf.csv", "curves.csv", "report.md", "report.html"]
 
 
@@ -55,7 +56,8 @@ def test_default_output_is_the_first_dir_report_folder_with_every_file(built):
 
 def test_rebuild_from_the_same_records_is_byte_identical(built):
     _, first, second = built
-    for name in OUTPUTS + ["figures/anytime_sphere.png", "figures/ecdf_vio_drive_27.png"]:
+    for name in OUTPUTS + ["figures/anytime_sphere.png", "figures/ecdf_vio_drive_27.png", "figures/cd_sphere.png",
+                           "figures/final_sphere.png", "figures/scatter_vio_drive_27.png"]:
         assert (first.parent / name).read_bytes() == (second.parent / name).read_bytes(), name
 
 
@@ -114,10 +116,12 @@ def test_build_report_rejects_an_empty_list():
 def test_module_entry_point_runs_as_documented(built, tmp_path):
     root, _, _ = built
     done = subprocess.run([sys.executable, "-m", "bench.report", str(root), "--out", str(tmp_path / "r"),
-                           "--pairing", "seed", "--no-tables"], capture_output=True, text=True, timeout=120)
+                           "--family", "all", "--no-tables"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert Path(done.stdout.strip()) == tmp_path / "r" / "report.md"
-    assert "wilcoxon" in (tmp_path / "r" / "pairwise.csv").read_text()
+    verdicts = pd.read_csv(tmp_path / "r" / "verdicts.csv")
+    # all pairs of pso, cmaes and the reference on the objective of each problem
+    assert (verdicts.query("question == 'best_f' and family == 'posthoc'")["family_size"] == 3).all()
     bad = subprocess.run([sys.executable, "-m", "bench.report", str(tmp_path / "missing")],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
@@ -128,9 +132,10 @@ def test_a_problem_where_every_run_failed_still_reports(tmp_path):
     write_job(tmp_path, "p", "b", 0, [[1.0]], status="failed")
     write_job(tmp_path, "q", "b", 0, [[1.0], [0.5]])
     report = build_report([tmp_path], tmp_path / "out", paper_tables=False)
-    board = (report.parent / "leaderboard.csv").read_text().splitlines()
-    assert board[1].startswith("p,a,1.5,1,1,") and board[1].endswith(",n/a")
-    assert board[3].startswith("q,b,1,1,0,0.5,") and board[3].endswith(",leader")
+    board = pd.read_csv(report.parent / "leaderboard.csv").set_index(["problem", "optimizer"])
+    assert board.loc[("p", "a"), ["rank", "n_runs", "n_failed"]].tolist() == [1.5, 1, 1]
+    assert board.loc[("p", "a"), "verdict"] == "untestable"  # no valid run: it leads nothing
+    assert board.loc[("q", "b"), ["best_f_median", "verdict"]].tolist() == [0.5, "leader"]
     assert (report.parent / "figures" / "ecdf_p.png").exists()
 
 
@@ -169,7 +174,7 @@ def test_alpha_outside_0_1_exits_2_with_one_message(built, alpha, capsys):
     root, _, _ = built
     assert main([str(root), "--alpha", alpha, "--no-tables", "--out", str(root / "never")]) == 2
     err = capsys.readouterr().err
-    assert "--alpha must be" in err and err.count("\n") == 1 and "Traceback" not in err
+    assert "verdict.alpha must be" in err and err.count("\n") == 1 and "Traceback" not in err
     assert not (root / "never").exists()  # refused before any work
 
 
@@ -181,7 +186,8 @@ def test_html_page_is_self_contained_with_every_section_and_figure(built):
     for section, _ in SECTIONS:
         assert f'<section id="{section}">' in page, section
     # every figure embedded as data; nothing fetched from anywhere
-    assert page.count('src="data:image/png;base64,') == 4  # anytime and ECDF of two problems
+    # anytime, ECDF, final values and CD diagram of both problems; the scatter where the truth is known
+    assert page.count('src="data:image/png;base64,') == 9
     assert not re.search(r'(src|href)="(?!data:|#)', page)
     assert "http://" not in page and "https://" not in page
     assert 'class="dataframe sortable"' in page and "sweep/sphere/cmaes/seed0" in page

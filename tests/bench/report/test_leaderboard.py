@@ -10,16 +10,18 @@ from record_factory import write_job
 from bench.records import load_records
 from bench.report.curves import run_traces
 from bench.report.leaderboard import LeaderboardError, leaderboard, runs_table
-from bench.report.stats import summary, versus_leader
+from bench.report.paired import add_reference_errors, check_settings, paired_verdicts
+from bench.report.stats import summary
 from bench.report.targets import ert_table, hitting_times, problem_targets
 
 
 def board_from(root) -> pd.DataFrame:
-    runs = runs_table(load_records([root]))
+    records = load_records([root])
+    runs = add_reference_errors(runs_table(records), records)
     traces = run_traces(runs)
     targets = problem_targets(runs, traces)
-    summ = summary(runs)
-    return leaderboard(runs, summ, versus_leader(runs, summ),
+    objective = paired_verdicts(runs, check_settings({})).by_question["best_f"]
+    return leaderboard(runs, summary(runs), objective.comparisons, objective.friedman,
                        ert_table(hitting_times(runs, traces, targets), targets))
 
 
@@ -68,12 +70,15 @@ def test_ert_of_the_main_target_and_budget_used(board):
     assert board.loc["good", "evals_median"] == 3 and board.loc["crash", "evals_median"] == 0
 
 
-def test_leader_comparison_is_holm_corrected_and_labelled(board):
-    assert board.loc["good", "vs_leader"] == "leader" and np.isnan(board.loc["good", "p_vs_leader"])
-    # fully separated 5 vs 5: exact two-sided p = 2 / C(10, 5); one testable comparison -> unchanged
-    assert board.loc["bad", "p_vs_leader"] == pytest.approx(2 / 252)
-    assert board.loc["bad", "vs_leader"] == "yes"
-    assert board.loc["crash", "vs_leader"] == "n/a"
+def test_leader_comparison_is_paired_holm_corrected_and_labelled(tmp_path):
+    for instance in range(8):  # "bad" worse than "good" on every one of 8 shared instances
+        write_job(tmp_path, "vio", "good", instance, [[instance / 10]], instance=instance)
+        write_job(tmp_path, "vio", "bad", instance, [[5.0 + instance / 100]], instance=instance)
+    board = board_from(tmp_path).set_index("optimizer")
+    assert board.loc["good", "verdict"] == "leader" and np.isnan(board.loc["good", "p_holm_vs_leader"])
+    # 8 pairs of one sign: exact two-sided signed-rank p = 2 / 2^8; one test in the family
+    assert board.loc["bad", "p_holm_vs_leader"] == pytest.approx(2 / 256)
+    assert board.loc["bad", "verdict"] == "worse" and (board["p_holm_family"] == 1).all()
 
 
 def test_ties_in_median_share_the_rank(tmp_path):
@@ -82,7 +87,7 @@ def test_ties_in_median_share_the_rank(tmp_path):
         write_job(tmp_path, "p", "b", seed, [[1.0 + seed]])
     board = board_from(tmp_path).set_index("optimizer")
     assert board["rank"].tolist() == [1.5, 1.5]
-    assert board.loc["b", "p_vs_leader"] == 1.0 and board.loc["b", "vs_leader"] == "no"
+    assert board.loc["b", "p_holm_vs_leader"] == 1.0 and board.loc["b", "verdict"] == "undecided"
 
 
 def test_a_record_missing_a_required_field_is_named(tmp_path):
@@ -131,16 +136,16 @@ def test_a_seed_recorded_twice_is_refused_naming_both_folders(tmp_path):
 
 
 def test_columns_carry_unit_ci_level_correction_verdict_and_threshold(tmp_path):
-    for seed in range(6):
+    for seed in range(8):
         write_job(tmp_path, "vio", "good", seed, [[0.1 + 0.01 * seed]], f_truth=0.1, f_unit="m")
         write_job(tmp_path, "vio", "bad", seed, [[9.0 + seed]], f_truth=0.1, f_unit="m")
         write_job(tmp_path, "vio", "same", seed, [[0.1 + 0.01 * seed]], f_truth=0.1, f_unit="m")
     board = board_from(tmp_path).set_index("optimizer")
     assert (board["f_unit"] == "m").all() and (board["ci_level"] == 0.95).all() and (board["alpha"] == 0.05).all()
     assert board.loc["good", "main_target_threshold"] == pytest.approx(0.105)
-    assert board[["verdict"]].to_dict()["verdict"] == {"good": "leader", "bad": "worse", "same": "not different"}
-    assert board.loc["bad", "p_holm_vs_leader"] == board.loc["bad", "p_vs_leader"]
-    assert (board["p_holm_family"] == 3).all()  # all three pairs of the problem, as in the pairwise table
+    assert board[["verdict"]].to_dict()["verdict"] == {"good": "leader", "bad": "worse", "same": "undecided"}
+    assert board.loc["bad", "p_holm_vs_leader"] == pytest.approx(2 * 2 / 256)  # Holm over the 2 tests
+    assert (board["p_holm_family"] == 2).all()  # each against the leader
 
 
 def test_the_schema_is_the_same_for_every_problem(tmp_path):

@@ -7,16 +7,12 @@ from scipy import stats as sps
 
 from bench.report.stats import (
     StatsError,
-    a12,
-    a12_magnitude,
     average_ranks,
     compare,
     holm,
     median_ci,
-    pairwise,
     ranks,
     summary,
-    versus_leader,
 )
 
 
@@ -41,25 +37,6 @@ def test_holm_is_monotone_capped_and_not_below_raw():
     order = np.argsort(p)
     assert np.all(np.diff(adjusted[order]) >= 0)
     assert np.all(adjusted >= p) and np.all(adjusted <= 1)
-
-
-def test_a12_hand_case():
-    # pairs (a<b): 1<2, 1<4, 2<4, 3<4 -> 4; ties: 2=2 -> 0.5; total 6 pairs
-    assert a12([1, 2, 3], [2, 4]) == pytest.approx(4.5 / 6)
-
-
-def test_a12_equals_normalised_mann_whitney_u_and_is_complementary():
-    rng = np.random.default_rng(0)
-    a, b = rng.integers(0, 5, 9).astype(float), rng.integers(0, 5, 7).astype(float)  # many ties
-    u_b = sps.mannwhitneyu(b, a).statistic  # counts b > a plus half the ties
-    assert a12(a, b) == pytest.approx(u_b / (a.size * b.size))
-    assert a12(a, b) + a12(b, a) == pytest.approx(1.0)
-
-
-def test_a12_magnitude_thresholds():
-    assert [a12_magnitude(v) for v in (0.5, 0.57, 0.36, 0.75, 0.0)] == \
-        ["negligible", "small", "medium", "large", "large"]
-    assert a12_magnitude(np.nan) == ""
 
 
 def test_mann_whitney_exact_hand_case():
@@ -88,34 +65,6 @@ def test_wilcoxon_hand_case_drops_zero_differences():
     assert test == "wilcoxon" and p == pytest.approx(0.25)
     with pytest.raises(StatsError):
         compare([1, 2], [1, 2, 3], paired=True)
-
-
-def test_pairwise_excludes_failed_runs_and_corrects_within_problem():
-    runs = runs_frame({("p", "a"): [1, 2, 3], ("p", "b"): [4, 5, 6], ("p", "c"): [7, 8, 9],
-                       ("q", "a"): [1, 2, 3], ("q", "b"): [4, 5, 6]}, failed={("p", "a"): 2})
-    table = pairwise(runs)
-    ab = table[(table["problem"] == "p") & (table["a"] == "a") & (table["b"] == "b")].iloc[0]
-    assert ab["n_a"] == 3 and ab["p_value"] == pytest.approx(0.1) and ab["a12"] == 1.0
-    # three pairs in problem p, each p = 0.1 -> Holm 0.3; one pair in q -> unchanged
-    np.testing.assert_allclose(table.loc[table["problem"] == "p", "p_holm"], 0.3)
-    assert table.loc[table["problem"] == "q", "p_holm"].iloc[0] == pytest.approx(0.1)
-    assert set(table["significant"]) == {"no"}
-
-
-def test_pairing_by_seed_uses_wilcoxon_only_when_seed_sets_match():
-    runs = runs_frame({("p", "a"): [1, 2, 3, 4], ("p", "b"): [1, 3, 5, 8]})
-    assert pairwise(runs, pairing="seed")["test"].iloc[0] == "wilcoxon"
-    uneven = runs[~((runs["optimizer"] == "b") & (runs["seed"] == 3))]
-    assert pairwise(uneven, pairing="seed")["test"].iloc[0] == "mannwhitneyu"
-    with pytest.raises(StatsError):
-        pairwise(runs, pairing="bogus")
-
-
-def test_untestable_pair_is_reported_not_dropped():
-    runs = runs_frame({("p", "a"): [1.0], ("p", "b"): [2.0, 3.0]}, failed={("p", "c"): 3})
-    table = pairwise(runs)
-    assert len(table) == 3
-    assert set(table["significant"]) == {"n/a"} and table["p_holm"].isna().all()
 
 
 def test_median_ci_is_seeded_contains_median_and_handles_degenerate_samples():
@@ -149,33 +98,6 @@ def test_ranks_average_ties_and_put_optimisers_without_runs_last():
     assert list(avg.index[:2]) == ["b", "a"]
 
 
-def test_versus_leader_compares_everyone_with_the_lowest_median():
-    runs = runs_frame({("p", "a"): [5, 6, 7, 8, 9], ("p", "b"): [0, 1, 2, 3, 4], ("p", "c"): [1, 2, 3, 4, 5]})
-    table = versus_leader(runs, summary(runs))
-    assert set(table["b"]) == {"b"} and list(table["a"]) == ["a", "c"]
-    raw = table.set_index("a")["p_value"]
-    assert raw["a"] == pytest.approx(sps.mannwhitneyu([5, 6, 7, 8, 9], [0, 1, 2, 3, 4]).pvalue)
-    # Holm over the problem's family of all pairs (a-b, a-c, b-c), as in the pairwise table
-    pairs = pairwise(runs)
-    family = holm(pairs["p_value"].to_numpy())
-    by_pair = {frozenset((a, b)): p for a, b, p in zip(pairs["a"], pairs["b"], family)}
-    np.testing.assert_allclose(table["p_holm"], [by_pair[frozenset(("a", "b"))], by_pair[frozenset(("c", "b"))]])
-    assert (table["family_size"] == 3).all()
-
-
-def test_leaderboard_and_pairwise_significance_agree_pair_by_pair():
-    # the leaderboard used Holm over the k-1 leader comparisons, the pairwise table over all pairs:
-    # the same pair could be "significant" in one and not in the other
-    rng = np.random.default_rng(1)
-    runs = runs_frame({("p", o): list(rng.normal(mu, 1.0, 8)) for o, mu in
-                       zip("abcde", (0.0, 0.9, 1.1, 1.3, 3.0))})
-    vs = versus_leader(runs, summary(runs))
-    pairs = pairwise(runs).set_index(["a", "b"])
-    for row in vs.itertuples(index=False):
-        pair = pairs.loc[tuple(sorted((row.a, row.b)))]
-        assert (row.p_holm, row.significant) == (pair["p_holm"], pair["significant"])
-
-
 def test_a_seed_twice_in_one_group_is_refused():
     runs = runs_frame({("p", "a"): [1.0, 2.0]})
     runs.loc[1, "seed"] = 0
@@ -183,9 +105,7 @@ def test_a_seed_twice_in_one_group_is_refused():
         summary(runs)
 
 
-def test_alpha_and_confidence_outside_zero_one_are_refused():
+def test_confidence_outside_zero_one_is_refused():
     runs = runs_frame({("p", "a"): [1.0, 2.0], ("p", "b"): [3.0, 4.0]})
-    with pytest.raises(StatsError, match="alpha must be in"):
-        pairwise(runs, alpha=2)
     with pytest.raises(StatsError, match="confidence must be in"):
         summary(runs, confidence=1.5)
