@@ -15,7 +15,7 @@ error achieved (1: as good as the data allow).
 
 This is a bound only as far as the joint likelihood is the data's likelihood
 (studies/objective/information_equality.py tests that: ``tr(H^-1 G)/p = 1`` at the truth).
-studies/identifiability/information_bound.py predicts something else: where one objective's
+studies/identifiability/minimiser_scatter.py predicts something else: where one objective's
 minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far above this bound.
 
     python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4]

@@ -11,7 +11,7 @@ Method: on fresh drives of the identifiability study's cameras (data seed s, dri
 ``(s, 100 + i)`` of the ``paper_540m`` preset, as studies/objective/objective_bias.py), imposed
 decisions (``outlier_decisions: reference_all``: the same features for every calibration), one
 batch per drive holds the truth and a central-difference design in the flat-city variables
-fx, fy, cx, cy, rx, ry, rz, dx (dy, dz at the truth; studies/identifiability/information_bound.py's
+fx, fy, cx, cy, rx, ry, rz, dx (dy, dz at the truth; studies/identifiability/minimiser_scatter.py's
 ``design``). Per drive and objective, the gradient and Hessian of the drive's *total* NLL (nats:
 the per-residual objective times its calibration-free slot count). Reported per objective:
 
@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
-from information_bound import derivatives, design
+from minimiser_scatter import derivatives, design
 from objective_bias import DRIVE, FRESH_SEED0
 
 from avio.filter.batch import set_threads
@@ -49,7 +49,7 @@ from bench.problems.synthetic import Synthetic
 
 VARS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx")
 #: central-difference steps (px, deg, m): with imposed decisions both likelihoods are smooth, so
-#: half information_bound.py's steps (chosen for the roughness of the filters' own decisions)
+#: half minimiser_scatter.py's steps (chosen for the roughness of the filters' own decisions)
 STEP = {"fx": 1.5, "fy": 1.5, "cx": 1.5, "cy": 1.5, "rx": 0.15, "ry": 0.15, "rz": 0.15, "dx": 0.015}
 OBJECTIVES = ("innovation_nll", "innovation_nll_joint")
 #: the 7 free variables of the flat-city rows: f = fx = fy, then cx, cy, rx, ry, rz, dx

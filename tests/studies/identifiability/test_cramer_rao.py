@@ -17,7 +17,7 @@ def _toy(rng, n_obs=40, p=3, sigma=0.5):
 
 def test_the_bound_of_a_linear_gaussian_model_is_its_known_one_and_least_squares_attains_it(load_script):
     module = load_script("cramer_rao")
-    design = load_script("information_bound")
+    design = load_script("minimiser_scatter")
     rng = np.random.default_rng(0)
     B, x_true, sigma = _toy(rng)
     h = np.array([0.1, 0.2, 0.05])
