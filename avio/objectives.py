@@ -32,6 +32,17 @@
   truth).
   Computed inside the filter kernel (avio/filter/update.py) as ``FilterResult.nll``,
   ``nll_slots``, ``nis``, ``dof``.
+- :func:`innovation_nll_joint`: the joint negative log-likelihood of each update's stacked
+  innovations (docs/model.md, Eq. 55a): per frame ``1/2 (r^T S^-1 r + log det S + m log 2 pi)``
+  over the m residuals of the features the update used, with their full covariance
+  ``S = H P H^T + R`` (the features' correlation through the shared pose error included), as the
+  update itself uses it (``FilterResult.nis``, ``log_det_S``, ``dof``: the Woodbury and
+  determinant-lemma identities of the 12x12 solve, Eqs. 44-45; no (3F)x(3F) matrix is formed).
+  Every valid feature the update did not use pays the per-feature cap above, so every filter
+  is scored over the same slots and frames (Eq. 54); per residual, as :func:`innovation_nll`.
+  Meant for imposed decisions (``outlier_decisions="reference_all"``): the same features for
+  every filter, so that the objective is smooth in the calibration; with the filters' own
+  decisions a rejected feature pays the cap instead of its joint term.
 
 A diverged filter gets ``penalty * (2 - k_div / N)`` under either objective (the worst over the
 drives; Eqs. 52-53), finite and worse the earlier it diverged.
@@ -41,9 +52,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from avio.filter.update import LOG_2PI, M
 from avio.metrics import position_rmse_objective
 
-OBJECTIVES = ("position_rmse", "innovation_nll")
+OBJECTIVES = ("position_rmse", "innovation_nll", "innovation_nll_joint")
 #: frames whose triplet moves less in the image than this (median over features, pixels from
 #: image 1 to image 3) are not scored by :func:`innovation_nll` (module docstring); moving
 #: drives show tens of pixels, the braking frames before the default drive's stop 1-2.3 px.
@@ -102,3 +114,29 @@ def innovation_nll(results, penalty: float, scored=None) -> tuple[np.ndarray, np
     diverged, pen = _penalty(results, penalty)
     f = np.where(diverged | ~np.isfinite(f), np.where(diverged, pen, 2.0 * penalty), f)
     return f, nis_per_dof
+
+
+def unused_feature_nll(sigma_px: float, chi2_threshold: float) -> float:
+    """The NLL a valid feature the update does not use pays (nats; docs/model.md, Eq. 46, second
+    case): ``1/2 (chi2_gate + M log sigma^2 + M log 2 pi)`` with M = 3 residuals."""
+    return 0.5 * (chi2_threshold + M * np.log(sigma_px * sigma_px) + M * LOG_2PI)
+
+
+def innovation_nll_joint(results, penalty: float, unused_nll: float, scored=None) -> np.ndarray:
+    """(n,) the joint innovation NLL per residual pooled over the drives (module docstring;
+    docs/model.md, Eq. 55a). unused_nll: :func:`unused_feature_nll` of the filter's settings
+    (nats per unused feature); scored: per drive the (N,) :func:`scored_frames` (None: every
+    frame)."""
+    scored = [None] * len(results) if scored is None else scored
+    nll = 0.0
+    slots = 0
+    for r, m in zip(results, scored):
+        # Eq. (55a): the joint term of the used residuals (Eqs. 44-45) and the cap of the unused slots.
+        frame = 0.5 * (r.nis + r.log_det_S + r.dof * LOG_2PI) + (r.nll_slots - r.dof) / M * unused_nll
+        keep = np.ones(r.nis.shape[1], bool) if m is None else m
+        nll = nll + np.where(keep, frame, 0.0).sum(axis=1)
+        slots = slots + np.where(keep, r.nll_slots, 0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = nll / slots
+    diverged, pen = _penalty(results, penalty)
+    return np.where(diverged | ~np.isfinite(f), np.where(diverged, pen, 2.0 * penalty), f)

@@ -109,6 +109,14 @@ class SimConfig:
         """The paper's Table 3 drive: ~928 m in ~115 s (8 m/s), city with hills."""
         return cls(**{"trajectory": "city_hills", "duration_s": 115.0, "speed_mps": 928.0 / 115.0, **overrides})
 
+    @classmethod
+    def full3d_540m(cls, **overrides) -> "SimConfig":
+        """An excited rig: ~540 m in ~78 s (7 m/s) on the ``full3d`` trajectory (grades of ~8 deg,
+        road bank of ~7 deg, slalom, speed changes, no stop): rotation about every axis, so that
+        all ten calibration variables are determined (issue 33; a flat city drive leaves the
+        lever arm's dy, dz nearly free)."""
+        return cls(**{"trajectory": "full3d", "duration_s": 78.0, "speed_mps": 540.0 / 78.0, **overrides})
+
     def validate(self) -> None:
         """Raise SimulatorError naming the first bad field."""
         checks = [

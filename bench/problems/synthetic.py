@@ -23,7 +23,7 @@ from avio.sequence import ImuNoise, Sequence
 from bench.problems.base import ProblemError, register
 from bench.problems.vio import Drives, VioParams, VioProblem, _tuples
 
-PRESETS = ("paper_540m", "paper_928m")
+PRESETS = ("paper_540m", "paper_928m", "full3d_540m")
 HOLDOUT_SEED = 1000  # second entropy word of the held-out drive's seed: no calibration drive uses it
 NOISE_WORD = 2000  # third entropy word of a noise realisation's seed (4 words: no drive's seed has as many)
 
@@ -49,7 +49,8 @@ def _sim_config(drive: str, sim: dict | None):
 @dataclass(frozen=True)
 class SyntheticParams(VioParams):
     """drives: the calibration drives (presets of avio.sim.simulator.SimConfig: paper_540m = ~540 m
-    in 78 s, flat city with a stop; paper_928m = ~928 m in 115 s with hills), all of one camera;
+    in 78 s, flat city with a stop; paper_928m = ~928 m in 115 s with hills; full3d_540m = ~540 m in
+    78 s on the full3d trajectory, rotation about every axis), all of one camera;
     holdout: the held-out preset or None; data_seed: the camera and the drives (>= 0);
     sim: SimConfig overrides for every drive, e.g. {pixel_noise_px: 1.0}; noise_realisations:
     each calibration drive in this many noise realisations (>= 1; module docstring)."""

@@ -55,7 +55,7 @@ def load(folder: Path) -> pd.DataFrame:
             continue
         params = record["config"]["problem"]["params"]
         rows.append({"config": path.relative_to(folder).parts[0], "objective": params["objective"],
-                     "drives": len(params["drives"]), "noise_realisations": params.get("noise_realisations", 1),
+                     "drives": len(params["drives"]), "rig": params["drives"][0], "noise_realisations": params.get("noise_realisations", 1),
                      "free": len(record["best_x"]), "seed": record["seed"],
                      "decisions": (params.get("filter") or {}).get("outlier_decisions", "own"),
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
@@ -111,7 +111,8 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     for _, g in runs.groupby("config", sort=False):  # one configuration per folder (which variables are free, too)
         first = g.iloc[0]
         row = {"objective": first.objective, "drives": first.drives, "noise_realisations": first.noise_realisations,
-               "free": first.free, "evals": int(g.evals.median()), "seeds": len(g), "decisions": first.decisions}
+               "free": first.free, "evals": int(g.evals.median()), "seeds": len(g), "decisions": first.decisions,
+               "rig": first.get("rig", "paper_540m")}  # the drive preset (full3d_540m: the excited rig)
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
             row[f"reference_{k}"] = g[f"reference_{k}"].median()
@@ -132,7 +133,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     return ordered(pd.DataFrame(rows))
 
 
-OBJECTIVE_ORDER = ("position_rmse", "innovation_nll")
+OBJECTIVE_ORDER = ("position_rmse", "innovation_nll", "innovation_nll_joint")
 
 
 def ordered(summary: pd.DataFrame) -> pd.DataFrame:
@@ -151,6 +152,8 @@ def markdown(summary: pd.DataFrame) -> str:
              "than reference / than truth | best f below f(truth) |", "|" + "---|" * 14]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
+        rig = getattr(r, "rig", "paper_540m")
+        drives += f" {rig}" if rig != "paper_540m" else ""
         objective = r.objective + (f" ({r.decisions} decisions)" if r.decisions != "own" else "")
         lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "

@@ -1,7 +1,7 @@
 """The objective along the straight line from the truth to a run's best point, with the filter's
 update decisions counted: is the run's minimum a valley or a cell of luckier decisions?
 
-studies/identifiability/information_bound.py predicts where the minimum of a K-drive objective lies from its
+studies/identifiability/minimiser_scatter.py predicts where the minimum of a K-drive objective lies from its
 curvature at the truth; the identifiability study's runs end 2-3x farther out, every one below
 f(truth). This script evaluates a run's own problem (its record's params, so its own drives) at
 ``truth + t (best - truth)`` in the run's space (``truth``: the problem's truth in that space,

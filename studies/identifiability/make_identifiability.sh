@@ -19,7 +19,8 @@
 # transfer-gain and baseline checks imposed too (suffix _refall, outlier_decisions=reference_all:
 # the last per-filter decisions, which left jumps along dx), and the likelihood's own- and
 # reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
-# hold over twenty?). Then the summary table and figure
+# hold over twenty?), and (issue 33) the joint likelihood's 4-drive, 7-free one and the excited
+# rig's rows (suffixes _full3d, _td). Then the summary table and figure
 # (studies/identifiability/identifiability.py).
 #   bash studies/identifiability/make_identifiability.sh [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -43,7 +44,15 @@ all+=(position_rmse_sixteendrive_7free innovation_nll_sixteendrive_7free positio
       position_rmse_fourdrive_7free_1600evals_10seeds innovation_nll_fourdrive_7free_refdecisions_1600evals_10seeds
       position_rmse_fourdrive_7free_refdecisions_1600evals_10seeds innovation_nll_fourdrive_7free_refall_1600evals_10seeds
       innovation_nll_fourdrive_7free_1600evals_20seeds innovation_nll_fourdrive_7free_refall_1600evals_20seeds
-      position_rmse_fourdrive_7free_1600evals_20seeds)
+      position_rmse_fourdrive_7free_1600evals_20seeds innovation_nll_joint_fourdrive_7free_refall_1600evals_10seeds)
+# issue 33: the excited rig (suffix _full3d: drives full3d_540m), all 10 free and with the time
+# offset as an 11th (suffix _td), 1 and 4 drives, each objective (likelihoods with reference_all)
+for objective in position_rmse innovation_nll innovation_nll_joint; do
+  decide=""; [ "$objective" != position_rmse ] && decide=_refall
+  for drives in one four; do
+    for td in "" _td; do all+=("${objective}_${drives}drive_10free_full3d${td}${decide}_1600evals_10seeds"); done
+  done
+done
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -53,19 +62,22 @@ for name in "$@"; do
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
   decisions=(); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
   [[ $base == *_refall ]] && { decisions=('problem.params.filter={outlier_decisions: reference_all}'); base=${base%_refall}; }
+  preset=paper_540m; timing=()
+  [[ $base == *_td ]] && { timing=(problem.params.with_time_offset=true); base=${base%_td}; }
+  [[ $base == *_full3d ]] && { preset=full3d_540m; base=${base%_full3d}; }
   objective=${base%_*drive_*free}
   rest=${base#"${objective}_"}
   case ${rest%%drive_*} in one) n=1 ;; four) n=4 ;; sixteen) n=16 ;; esac
   free=${base##*_}; free=${free%free}
   noise=1; [[ $rest == *_fournoise_* ]] && noise=4
-  d="[$(printf 'paper_540m,%.0s' $(seq "$n"))]"; d=${d/,]/]}
+  d="[$(printf "$preset,%.0s" $(seq "$n"))]"; d=${d/,]/]}
   extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
   rm -rf "${out:?}/$name"
   start=$(date -u +%s)
   python -m bench problem=synthetic optimizer=cmaes seed="range($seeds)" budget.evals="$budget" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
-    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" "${timing[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done

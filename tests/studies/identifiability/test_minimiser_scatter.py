@@ -1,4 +1,4 @@
-"""studies/identifiability/information_bound.py: the K-drive minimiser's scatter from curvature and gradient noise."""
+"""studies/identifiability/minimiser_scatter.py: the K-drive minimiser's scatter from curvature and gradient noise."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 
 
 def test_the_design_gives_a_quadratics_gradient_and_hessian_exactly(load_script):
-    module = load_script("information_bound")
+    module = load_script("minimiser_scatter")
     rng = np.random.default_rng(0)
     n = 4
     B = rng.standard_normal((n, n))
@@ -20,7 +20,7 @@ def test_the_design_gives_a_quadratics_gradient_and_hessian_exactly(load_script)
 
 
 def test_a_configurations_space_is_an_affine_subspace_with_its_tie_and_frozen_rows(load_script):
-    module = load_script("information_bound")
+    module = load_script("minimiser_scatter")
     full = module.Synthetic(drives=[module.DRIVE], holdout=None, data_seed=0, space="local")
     A, c = module.subspace(full, True, ["dy", "dz"], 0)
     names = list(full.space.names)
@@ -35,7 +35,7 @@ def test_a_configurations_space_is_an_affine_subspace_with_its_tie_and_frozen_ro
 
 
 def test_without_noise_or_tilt_the_free_minimiser_is_the_truth_and_a_frozen_one_is_not(load_script):
-    module = load_script("information_bound")
+    module = load_script("minimiser_scatter")
     rng = np.random.default_rng(1)
     h = np.array([module.STEP[k] for k in ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")])
     H = np.tile(np.diag(1.0 / h**2), (3, 1, 1))  # well curved in every variable

@@ -1,5 +1,10 @@
-"""How close can K calibration drives put the calibration, whatever the optimiser? The scatter
-of the objective's minimiser, predicted from its curvature and its drive-to-drive gradient noise.
+"""Where does the exact minimum of one objective over K calibration drives fall? The scatter of
+the objective's minimiser, predicted from its curvature and its drive-to-drive gradient noise.
+
+Not a bound on what the data allow (named information_bound.py until issue 33): it predicts this
+objective's minimiser, whatever its efficiency; the Cramér–Rao bound of what any unbiased
+estimator can reach is studies/identifiability/cramer_rao.py. A configuration's frozen variables
+set floors of their own (the 7-free space's lever arm: dy, dz frozen at the reference).
 
 The identifiability study (results/identifiability) finds its best runs below f(truth) and yet
 0.2-1.4 deg from the truth: the objective's minimum on those drives is there. This script says
@@ -23,7 +28,7 @@ origin of y). Drawing eps gives the minimiser's distribution per camera, turned 
 calibration errors (avio.calibration) against that seed's truth, and, by drawing one run
 per seed and taking the median over the seeds, the distribution of the study's median.
 
-    python studies/identifiability/information_bound.py [--seeds 0 1 2 3 4] [--drives 16] [--predict-seeds 0..9]
+    python studies/identifiability/minimiser_scatter.py [--seeds 0 1 2 3 4] [--drives 16] [--predict-seeds 0..9]
 
 The quadratic model holds near the truth (steps STEP, the size of the scatter it predicts); where
 the objective is rough (the likelihood's gate decisions) G carries that roughness at the step's

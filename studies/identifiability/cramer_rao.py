@@ -1,0 +1,104 @@
+"""What can K calibration drives tell about the calibration at best? The Cramér–Rao bound from the
+Fisher information of the joint innovation likelihood (issue 33).
+
+The Fisher information of the calibration on one drive is the expected Hessian of the drive's
+negative log-likelihood at the truth, ``I = E[d^2 l / dx^2]``, measured as the mean over fresh
+drives of the numerical Hessian of the joint likelihood (``innovation_nll_joint``, total nats per
+drive; studies/objective/information_equality.py measures and saves it). K independent drives
+carry ``K I``; any unbiased calibration from them has covariance at least ``(K A^T I A)^-1`` in the
+free variables ``y`` of a configuration (``x = A y + c``, frozen or tied variables in A, c). Its
+square roots are the bound on each variable; drawing ``y ~ N(y_t, (K A^T I A)^-1)`` and taking the
+reported errors (avio.calibration.calibration_errors: rotation deg, focal px, principal point
+px, lever arm cm) of the draws gives the bound on each error's median — the errors of an
+efficient estimator. A configuration's *efficiency* on a variable is the bound divided by the
+error achieved (1: as good as the data allow).
+
+This is a bound only as far as the joint likelihood is the data's likelihood
+(studies/objective/information_equality.py tests that: ``tr(H^-1 G)/p = 1`` at the truth).
+studies/identifiability/minimiser_scatter.py predicts something else: where one objective's
+minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far above this bound.
+
+    python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+#: the reported errors (avio.calibration.calibration_errors)
+ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
+
+
+def fisher_information(hessians: np.ndarray) -> np.ndarray:
+    """(p, p) Fisher information of one drive: the symmetrised mean of per-drive Hessians (D, p, p)
+    of the negative log-likelihood at the truth (nats per unit^2)."""
+    H = np.asarray(hessians, float).mean(axis=0)
+    return 0.5 * (H + H.T)
+
+
+def bound_covariance(information: np.ndarray, K: int, A: np.ndarray | None = None) -> np.ndarray:
+    """(r, r) Cramér–Rao covariance bound ``(K A^T I A)^-1`` of the free variables after K drives
+    (A (p, r): free variables into the measured ones; None: all free). Raises LinAlgError when a
+    free direction carries no information."""
+    A = np.eye(len(information)) if A is None else A
+    info = K * A.T @ information @ A
+    if np.linalg.eigvalsh(info)[0] <= 0:
+        raise np.linalg.LinAlgError("a free direction has no positive information: not identifiable")
+    return np.linalg.inv(info)
+
+
+def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000) -> dict[str, float]:
+    """Median of each reported error over draws ``dy ~ N(0, cov)`` of an efficient estimator
+    (to_calibration(dy (draws, r)) -> Calibration batch; truth: Calibration batch of 1)."""
+    from avio.calibration import calibration_errors
+
+    dy = rng.multivariate_normal(np.zeros(len(cov)), cov, size=draws, method="eigh")
+    errs = calibration_errors(to_calibration(dy), truth)
+    return {k: float(np.median(errs[k])) for k in ERRORS}
+
+
+def main(argv=None) -> None:
+    sys.path.insert(0, str(ROOT / "studies" / "objective"))
+    from information_equality import A7, VARS
+
+    from bench.problems.synthetic import Synthetic
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--load", type=Path, required=True, help="studies/objective/information_equality.py --save file")
+    parser.add_argument("--K", type=int, nargs="+", default=[1, 4, 16], help="calibration drives")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras whose errors are drawn")
+    args = parser.parse_args(argv)
+    info = fisher_information(np.load(args.load)["innovation_nll_joint_H"])
+    rng = np.random.default_rng(0)
+    names = ("f",) + VARS[2:]
+    print(f"Fisher information of the joint likelihood per drive ({len(np.load(args.load)['innovation_nll_joint_H'])} "
+          "drives); flat city, 7 free (fy = fx, dy, dz frozen)")
+    print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")
+    print("|---|" + "---|" * (len(names) + len(ERRORS)))
+    for K in args.K:
+        cov = bound_covariance(info, K, A7)
+        per = {k: [] for k in ERRORS}
+        for seed in args.seeds:
+            problem = Synthetic(drives=["paper_540m"], holdout=None, data_seed=seed, space="local")
+            cols = [problem.space.names.index(v) for v in VARS]
+
+            def decode(dy, problem=problem, cols=cols):
+                X = np.repeat(problem.truth[None], len(dy), axis=0)
+                X[:, cols] += dy @ A7.T
+                return problem.calibration_space.decode(X)
+
+            for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng).items():
+                per[k].append(v)
+        print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
+              + " | ".join(f"{np.median(per[k]):.3g}" for k in ERRORS) + " |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""Is each innovation likelihood a likelihood at the truth? Its information-matrix equality and its
+mean gradient on fresh drives (issue 33).
+
+For a correctly specified log-likelihood l(x) of one drive, at the true x: the mean gradient is
+zero and the gradients' covariance G equals the mean Hessian H (the information-matrix
+equality), so ``tr(H^-1 G) / p = 1`` and every eigenvalue of ``H^-1 G`` is 1. A composite
+likelihood (the per-feature ``innovation_nll``) or a misspecified one breaks the equality; a
+term of the model that is wrong at the truth tilts the mean gradient.
+
+Method: on fresh drives of the identifiability study's cameras (data seed s, drives
+``(s, 100 + i)`` of the ``paper_540m`` preset, as studies/objective/objective_bias.py), imposed
+decisions (``outlier_decisions: reference_all``: the same features for every calibration), one
+batch per drive holds the truth and a central-difference design in the flat-city variables
+fx, fy, cx, cy, rx, ry, rz, dx (dy, dz at the truth; studies/identifiability/minimiser_scatter.py's
+``design``). Per drive and objective, the gradient and Hessian of the drive's *total* NLL (nats:
+the per-residual objective times its calibration-free slot count). Reported per objective:
+
+- the mean gradient's t-statistic along each of the 8 variables (fy included);
+- for the study's 7 free variables (fy = fx: the common focal length f; ``A`` maps them into
+  the 8), ``tr(H^-1 G) / 7`` with a bootstrap 95 % interval over the drives, and the largest
+  eigenvalue of ``H^-1 G``; the same over the typical drives (a few drives' curvatures are 10-50x
+  the median or negative, and swing the mean Hessian's weak directions), with the per-variable
+  ratios ``G_ii / H_ii`` (1 where the equality holds).
+
+    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--save F.npz] [--load F.npz]
+
+About 25 s of CPU per drive (129 calibrations of a 78 s drive) on one thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "studies" / "objective"))
+sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
+
+from minimiser_scatter import derivatives, design
+from objective_bias import DRIVE, FRESH_SEED0
+
+from avio.filter.batch import set_threads
+from avio.objectives import innovation_nll, innovation_nll_joint, scored_frames, unused_feature_nll
+from avio.sim.simulator import SimConfig, simulate
+from bench.problems.synthetic import Synthetic
+
+VARS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx")
+#: central-difference steps (px, deg, m): with imposed decisions both likelihoods are smooth, so
+#: half minimiser_scatter.py's steps (chosen for the roughness of the filters' own decisions)
+STEP = {"fx": 1.5, "fy": 1.5, "cx": 1.5, "cy": 1.5, "rx": 0.15, "ry": 0.15, "rz": 0.15, "dx": 0.015}
+OBJECTIVES = ("innovation_nll", "innovation_nll_joint")
+#: the 7 free variables of the flat-city rows: f = fx = fy, then cx, cy, rx, ry, rz, dx
+A7 = np.zeros((8, 7))
+A7[0, 0] = A7[1, 0] = 1.0
+A7[2:, 1:] = np.eye(6)
+
+
+def drive_totals(problem: Synthetic, batch, drive) -> dict[str, np.ndarray] | None:
+    """(n,) total NLL (nats) of each objective on one drive, or None when a filter diverged."""
+    res = problem.run_filter(batch, drive)
+    if res.diverged.any():
+        return None
+    scored = scored_frames(drive)
+    slots = np.where(scored, res.nll_slots, 0).sum(axis=1).astype(float)
+    c = problem.filter_config
+    per = {"innovation_nll": innovation_nll([res], 1.0, [scored])[0],
+           "innovation_nll_joint": innovation_nll_joint([res], 1.0, unused_feature_nll(c.pixel_sigma_px,
+                                                                                      c.chi2_threshold), [scored])}
+    return {k: v * slots for k, v in per.items()}
+
+
+def measure(seeds, n_drives: int, sim: dict | None = None) -> dict:
+    """Per objective (D, 8) gradients and (D, 8, 8) Hessians at the truth, per unit of VARS
+    (sim: SimConfig overrides of the fresh drives)."""
+    out = {k: {"g": [], "H": []} for k in OBJECTIVES}
+    skipped = 0
+    h = np.array([STEP[v] for v in VARS])
+    for seed in seeds:
+        problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local",
+                            filter={"outlier_decisions": "reference_all"})
+        cols = [problem.space.names.index(v) for v in VARS]
+        X = np.repeat(problem.truth[None], len(design(8, h)), axis=0)
+        X[:, cols] += design(8, h)
+        batch = problem.calibration_space.decode(X)
+        camera = problem.sequence.truth_calibration
+        for i in range(n_drives):
+            drive = simulate(getattr(SimConfig, DRIVE)(**(sim or {})), (seed, FRESH_SEED0 + i), true_calibration=camera)
+            totals = drive_totals(problem, batch, drive)
+            if totals is None:
+                skipped += 1
+                continue
+            for k in OBJECTIVES:
+                g, H = derivatives(totals[k], h)
+                out[k]["g"].append(g)
+                out[k]["H"].append(H)
+    for k in OBJECTIVES:
+        out[k] = {q: np.array(v) for q, v in out[k].items()}
+    out["skipped"] = skipped
+    return out
+
+
+def equality(g: np.ndarray, H: np.ndarray) -> tuple[float, float]:
+    """``tr(H^-1 G) / p`` and the largest eigenvalue of ``H^-1 G`` (G the gradients' covariance,
+    H the mean Hessian; g (D, p), H (D, p, p))."""
+    Hm = 0.5 * (H.mean(axis=0) + H.mean(axis=0).T)
+    G = np.cov(g.T)
+    M = np.linalg.solve(Hm, G)
+    return float(np.trace(M) / g.shape[1]), float(np.max(np.linalg.eigvals(M).real))
+
+
+def bootstrap(g: np.ndarray, H: np.ndarray, rng, n: int = 2000) -> tuple[float, float]:
+    """95 % percentile interval of ``tr(H^-1 G) / p`` over drives resampled with replacement."""
+    D = len(g)
+    values = []
+    for _ in range(n):
+        pick = rng.integers(0, D, D)
+        values.append(equality(g[pick], H[pick])[0])
+    return float(np.quantile(values, 0.025)), float(np.quantile(values, 0.975))
+
+
+def typical(H: np.ndarray, k: float = 5.0) -> np.ndarray:
+    """(D,) bool: drives whose Hessian diagonal lies within k scaled MADs of the drives' median on
+    every variable (a few drives have curvatures 10-50x the median, or negative ones: the
+    likelihood is not quadratic at the steps' scale there)."""
+    diag = np.einsum("dii->di", H)
+    med = np.median(diag, axis=0)
+    mad = 1.4826 * np.median(np.abs(diag - med), axis=0)
+    return np.all(np.abs(diag - med) <= k * mad, axis=1)
+
+
+def report(data: dict, rng) -> list[str]:
+    """The table's lines: per objective the 7-free equality over all drives and over the typical
+    ones (:func:`typical`), with the per-variable ratios G_ii / H_ii there, and the 8 mean-gradient
+    t-statistics (all drives)."""
+    names = ("f",) + VARS[2:]
+    lines = ["| objective | drives | tr(H⁻¹G)/7 [95 % bootstrap] | largest eigenvalue | typical drives: tr(H⁻¹G)/7 [95 %] | "
+             "G_ii/H_ii there (" + ", ".join(names) + ") | " + " | ".join(f"t({v})" for v in VARS) + " |",
+             "|---|---|---|---|---|---|" + "---|" * len(VARS)]
+    for k in OBJECTIVES:
+        g, H = data[k]["g"], data[k]["H"]
+        g7, H7 = g @ A7, np.einsum("ia,dij,jb->dab", A7, H, A7)
+        ratio, top = equality(g7, H7)
+        lo, hi = bootstrap(g7, H7, rng)
+        keep = typical(H7)
+        r_t = equality(g7[keep], H7[keep])[0]
+        lo_t, hi_t = bootstrap(g7[keep], H7[keep], rng)
+        diag = np.diag(np.cov(g7[keep].T)) / np.diag(H7[keep].mean(axis=0))
+        t = g.mean(axis=0) / (g.std(axis=0, ddof=1) / np.sqrt(len(g)))
+        lines.append(f"| `{k}` | {len(g)} | {ratio:.2f} [{lo:.2f}–{hi:.2f}] | {top:.2f} | "
+                     f"{r_t:.2f} [{lo_t:.2f}–{hi_t:.2f}] ({keep.sum()} drives) | "
+                     + ", ".join(f"{v:.1f}" for v in diag) + " | " + " | ".join(f"{v:+.1f}" for v in t) + " |")
+    return lines
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras (data seeds)")
+    parser.add_argument("--drives", type=int, default=10, help="fresh drives per camera")
+    parser.add_argument("--sim", type=json.loads, default=None,
+                        help='SimConfig overrides of the fresh drives as JSON, e.g. \'{"pixel_noise_per_triplet": true}\'')
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--save", type=Path, help="write the gradients and Hessians (.npz)")
+    parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
+    args = parser.parse_args(argv)
+    set_threads(args.threads)
+    start = time.process_time()
+    if args.load:
+        saved = np.load(args.load)
+        data = {k: {"g": saved[f"{k}_g"], "H": saved[f"{k}_H"]} for k in OBJECTIVES}
+        data["skipped"] = int(saved["skipped"])
+    else:
+        data = measure(args.seeds, args.drives, args.sim)
+    if args.save:
+        np.savez(args.save, skipped=data["skipped"], **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
+    print(f"sim {args.sim or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
+          f"imposed decisions (reference_all), {time.process_time() - start:.0f} s CPU")
+    print("\n".join(report(data, np.random.default_rng(0))))
+
+
+if __name__ == "__main__":
+    main()

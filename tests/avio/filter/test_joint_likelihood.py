@@ -1,0 +1,78 @@
+"""The update's joint innovation statistics (docs/model.md, Eqs. 44-45, which the joint likelihood
+avio.objectives.innovation_nll_joint sums, Eq. 55a) against the dense stacked innovation
+covariance ``S = H P H^T + R`` formed explicitly."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avio.filter.measurement import measure, measure_workspace
+from avio.filter.update import (
+    MODE_NONE,
+    NOISE_FLOOR,
+    USED_RESIDUALS,
+    noise_workspace,
+    outlier_workspace,
+    update,
+    update_workspace,
+)
+from avio.geometry import so3_exp
+
+#: R_cam_imu of a forward-looking camera on a car (IMU x forward, camera z forward)
+R_CAM_IMU = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+INTRINSICS = (700.0, 705.0, 610.0, 185.0)
+
+
+def _scene(rng, F=12, noise_px=0.7):
+    """IMU poses of images 1, 2, 3 (clones k-2, k-1 and the current pose), a random SPD error
+    covariance P (27, 27) and F features (F, 3, 2) px seen from them with pixel noise."""
+    Rs = [so3_exp(rng.normal(0, 0.02, 3)) for _ in range(3)]
+    ps = [np.array([1.2 * i, 0.05 * i, 0.01 * i]) + rng.normal(0, 0.02, 3) for i in range(3)]
+    X = np.c_[rng.uniform(8, 30, F), rng.uniform(-10, 10, F), rng.uniform(-3, 3, F)]  # world, ahead
+    fx, fy, cx, cy = INTRINSICS
+    uv = np.empty((F, 3, 2))
+    for i in range(3):
+        cam = (X - ps[i]) @ Rs[i] @ R_CAM_IMU.T  # R_cam_imu R_world_imu^T (X - p), camera at the IMU
+        uv[:, i, 0] = fx * cam[:, 0] / cam[:, 2] + cx
+        uv[:, i, 1] = fy * cam[:, 1] / cam[:, 2] + cy
+    uv += rng.normal(0, noise_px, uv.shape)
+    B = rng.normal(0, 0.02, (27, 27))
+    P = B @ B.T + 1e-4 * np.eye(27)
+    return Rs, ps, P, uv
+
+
+def _dense(Rs, ps, P, uv, sigma_px):
+    """NIS and log det S of all features from the explicit (3F, 3F) S = H P H^T + R."""
+    F = uv.shape[0]
+    r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
+    C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
+    measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False)
+    rows = list(USED_RESIDUALS)
+    r = r4[rows].T.reshape(-1)  # feature-major: (f, a)
+    H = np.concatenate([J4[rows, :, f] for f in range(F)]) @ C
+    R = np.zeros((3 * F, 3 * F))
+    for f in range(F):
+        G = G4[rows, :, f]
+        R[3 * f:3 * f + 3, 3 * f:3 * f + 3] = sigma_px**2 * (G @ G.T + NOISE_FLOOR**2 * np.eye(3))
+    S = H @ P @ H.T + R
+    return r @ np.linalg.solve(S, r), np.linalg.slogdet(S)[1], 3 * F
+
+
+def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation():
+    rng = np.random.default_rng(3)
+    sigma = 0.7
+    for _ in range(3):
+        Rs, ps, P, uv = _scene(rng)
+        F = uv.shape[0]
+        nis_d, lds_d, m = _dense(Rs, ps, P, uv, sigma)
+        state = [Rs[2].copy(), ps[2].copy(), np.zeros(3), np.zeros(3), np.zeros(3), ps[0].copy(), Rs[0].copy(),
+                 ps[1].copy(), Rs[1].copy(), P.copy()]
+        used, rejected, nis, lds, dof, _, slots = update(
+            *state, np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU, np.zeros(3), uv, np.ones(F, np.bool_), sigma,
+            np.inf, 0.0, MODE_NONE, 3.0, 11.34, update_workspace(F), measure_workspace(), noise_workspace(F),
+            outlier_workspace(F), False, np.zeros(F, np.uint8))
+        assert (used, rejected, dof, slots) == (F, 0, m, m)
+        assert nis > 1.0
+        np.testing.assert_allclose(nis, nis_d, rtol=1e-7)
+        np.testing.assert_allclose(lds, lds_d, rtol=1e-9, atol=1e-8)

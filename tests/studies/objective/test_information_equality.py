@@ -1,0 +1,30 @@
+"""studies/objective/information_equality.py: the information-matrix ratio of a correct model is 1,
+of an overdispersed one its dispersion; atypical drives are told apart."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def test_the_ratio_is_one_for_a_correct_model_and_the_dispersion_for_an_overdispersed_one(load_script):
+    module = load_script("information_equality")
+    rng = np.random.default_rng(0)
+    p, D = 3, 4000
+    B = rng.standard_normal((p, p))
+    H = B @ B.T + np.eye(p)  # each drive's Hessian: the Fisher information
+    g = rng.multivariate_normal(np.zeros(p), H, size=D)  # score covariance = information
+    Hs = np.repeat(H[None], D, axis=0)
+    ratio, top = module.equality(g, Hs)
+    assert abs(ratio - 1.0) < 0.05 and abs(top - 1.0) < 0.1
+    ratio3, _ = module.equality(np.sqrt(3.0) * g, Hs)
+    assert abs(ratio3 - 3.0) < 0.15
+
+
+def test_drives_with_wild_curvatures_are_not_typical(load_script):
+    module = load_script("information_equality")
+    rng = np.random.default_rng(1)
+    H = np.repeat(np.eye(2)[None], 30, axis=0) * rng.uniform(0.9, 1.1, (30, 1, 1))
+    H[3, 0, 0] = 40.0
+    H[7, 1, 1] = -5.0
+    keep = module.typical(H)
+    assert not keep[3] and not keep[7] and keep.sum() == 28
