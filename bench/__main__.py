@@ -130,6 +130,9 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(130) from None
     if code:
         raise SystemExit(code)
+    if plan is not None and plan.sweep_dir is not None:  # for bench.status: the jobs not started yet
+        callbacks.LAST_SWEEP["planned"] = [str(d.relative_to(plan.sweep_dir)) for d in plan.job_dirs
+                                           if d.is_relative_to(plan.sweep_dir)]
     os.environ["BENCH_SWEEP_PID"] = str(os.getpid())  # launchers' local workers exit when it is gone
     os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""

@@ -25,6 +25,7 @@ from bench.records import FolderLock, LockError
 log = logging.getLogger(__name__)
 
 OUTCOMES = ".outcomes.jsonl"
+PLANNED = ".jobs.txt"  # the sweep's job folders, relative, one a line (for bench.status: jobs not started yet)
 LAST_SWEEP: dict = {}
 
 
@@ -42,6 +43,13 @@ def note_outcome(sweep_dir: Path, num: int, label: str, outcome: dict) -> None:
             os.close(fd)
     except OSError as err:  # the job is then counted as "did not report" at the end
         log.error("%s: cannot note its outcome in %s: %s", label, sweep_dir, err)
+
+
+def write_planned(sweep_dir: Path, job_dirs: list[str]) -> None:
+    """Write the sweep's job folders (relative to it) to ``PLANNED``, atomically."""
+    tmp = Path(sweep_dir) / f"{PLANNED}.{os.getpid()}.tmp"
+    tmp.write_text("".join(f"{d}\n" for d in job_dirs))
+    os.replace(tmp, Path(sweep_dir) / PLANNED)
 
 
 def read_outcomes(sweep_dir: Path) -> list[dict]:
@@ -65,6 +73,8 @@ class SweepReport(Callback):
         try:
             self._lock = FolderLock(sweep_dir, "sweep folder").acquire()
             (sweep_dir / OUTCOMES).write_text("")
+            if LAST_SWEEP.get("planned"):
+                write_planned(sweep_dir, LAST_SWEEP["planned"])
         except LockError as err:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
