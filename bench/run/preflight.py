@@ -47,6 +47,7 @@ from bench.records import (
     read_record,
     refuse_symlink,
 )
+from bench.run.compose_cache import JobComposer, job_part
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
 from bench.space import Space
@@ -327,10 +328,13 @@ def plan(argv: list[str]) -> SweepPlan:
             jobs = expand_jobs(argv)
             if len(jobs) > 4:
                 print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
+            composer = JobComposer(hydra_overrides)  # Hydra's full composition once per kind of job
             for job_overrides in jobs:
-                hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
-                cfg = _job_part(hcfg)
-                key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
+                hcfg = composer(job_overrides)
+                cfg = job_part(hcfg)
+                seed_of(cfg)  # each distinct problem and optimiser configuration is checked once, whatever the seed
+                key = json.dumps({k: v for k, v in identity_of(cfg).items() if k != "seed"}, sort_keys=True,
+                                 default=str)
                 if key not in seen:
                     seen.add(key)
                     check_job(cfg)
