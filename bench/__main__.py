@@ -26,9 +26,11 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from bench.errors import BenchError
 from bench.run import callbacks, hydra_guard
 from bench.run.job import exit_with_the_sweep, plain, run_configured_job
 from bench.run.preflight import CONF_DIR, preflight_plan
+from bench.run.slurm_check import check_launcher
 
 log = logging.getLogger("bench")
 
@@ -130,6 +132,12 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(130) from None
     if code:
         raise SystemExit(code)
+    if plan is not None:  # a cluster launcher's settings, asked of the cluster before anything is submitted
+        try:
+            check_launcher(argv, CONF_DIR, plan.n_jobs)
+        except BenchError as err:
+            print(f"error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
     if plan is not None and plan.sweep_dir is not None:  # for bench.status: the jobs not started yet
         callbacks.LAST_SWEEP["planned"] = [str(d.relative_to(plan.sweep_dir)) for d in plan.job_dirs
                                            if d.is_relative_to(plan.sweep_dir)]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.run.preflight import plan  # noqa: E402
+from bench.run.preflight import plan
 
 OPTIMIZERS = "psoga,pso,ga,cmaes,tpe,random"
 

@@ -88,6 +88,9 @@ class SweepReport(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir))
+        if "submitted" in LAST_SWEEP:  # hydra.launcher.wait=false: the jobs run on after this process
+            self._submitted(sweep_dir, LAST_SWEEP.pop("submitted"))
+            return
         try:
             report_error, where = self._report(config, sweep_dir)
             outcomes = read_outcomes(sweep_dir)
@@ -111,6 +114,15 @@ class SweepReport(Callback):
               + (" (exit code 1)" if n_failed else ""))
         for line in where:  # the sweep's last lines: where its results are, report.html last
             print(line)
+
+    def _submitted(self, sweep_dir: Path, submitted: dict) -> None:
+        if self._lock is not None:
+            self._lock.release()
+        LAST_SWEEP.update(n_jobs=submitted["n_jobs"], n_failed=0)
+        print(f"Submitted: {submitted['n_jobs']} jobs in {submitted['n_tasks']} array tasks "
+              f"(SLURM job(s) {', '.join(submitted['job_ids'])}); they run on after this command.")
+        print(f"Follow:      python -m bench.status {sweep_dir}")
+        print(f"Report:      python -m bench.report {sweep_dir}   (when they have ended)")
 
     def _report(self, config: DictConfig, sweep_dir: Path) -> tuple[str | None, list[str]]:
         """(the report's error or None, the lines that say where the results are)."""
