@@ -1,6 +1,6 @@
 """``hydra/launcher=bench_slurm`` (and ``bench_local``): Hydra's submitit launchers, packed and non-blocking.
 
-Three settings beside the submitit plugin's own (``hydra.launcher.*``):
+Settings beside the submitit plugin's own (``hydra.launcher.*``):
 
 - ``pack`` (int >= 1): jobs run one after the other in one array task. Each job keeps its own folder,
   identity, lock and record (each is Hydra's own ``run_job``, as with the plain launcher); fewer tasks
@@ -9,10 +9,10 @@ Three settings beside the submitit plugin's own (``hydra.launcher.*``):
   a larger sweep is submitted as several arrays.
 - ``wait`` (bool): ``false`` returns as soon as every array is submitted (SLURM only); follow the
   sweep with ``python -m bench.status DIR`` and build its report with ``python -m bench.report DIR``.
+- ``use_srun`` (bench_slurm, bool): ``false`` runs each task in the batch step itself, without ``srun``.
 
 The settings are checked before any submission by ``bench.run.slurm_check`` (``python -m bench`` runs it).
 """
-
 
 import logging
 from dataclasses import dataclass
@@ -38,6 +38,9 @@ class BenchSlurmConf(SlurmQueueConf):
     pack: int = 1
     max_array_size: int = 1000
     wait: bool = True
+    # false: the task runs in the batch step itself, not under srun (a cluster without cgroups cannot
+    # kill an srun task that ignores SIGTERM, as submitit's does: scancel would leave it running)
+    use_srun: bool = True
 
 
 @dataclass
