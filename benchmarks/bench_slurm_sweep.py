@@ -36,6 +36,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1000)
     parser.add_argument("--pack", type=int, default=50)
     parser.add_argument("--evals", type=int, default=20)
+    parser.add_argument("--submit-only", action="store_true", help="cancel the jobs once submitted: time the submission")
     args = parser.parse_args()
     from bench.run.preflight import plan
 
@@ -60,6 +61,12 @@ def main() -> None:
             submit_s = time.perf_counter() - t0
             if proc.returncode:
                 raise SystemExit(proc.stderr[-3000:])
+            if args.submit_only:
+                cluster.run("scancel", "--user", os.environ.get("USER", "root"))
+                cluster.idle()
+                print(f"jobs {args.jobs} (pack {args.pack}): preflight CPU {preflight_cpu:.1f} s; submitting command "
+                      f"(preflight + submission) {submit_s:.1f} s wall; {proc.stdout.strip().splitlines()[0]}")
+                return
             cluster.idle(timeout=3600)
             records = [json.loads(p.read_text()) for p in sweep.rglob("record.json")]
             last = max(p.stat().st_mtime for p in sweep.rglob("record.json"))
