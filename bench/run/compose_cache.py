@@ -132,3 +132,49 @@ def skip_sweeper_validation() -> None:
 
 def _validated_by_preflight(self, batch) -> None:
     """Every job of ``batch`` was composed by ``bench.run.preflight`` (see ``skip_sweeper_validation``)."""
+
+
+class SweepConfigCache:
+    """``load_sweep_config`` of Hydra's config loader, with the shortcut of ``JobComposer``, for a packed task.
+
+    The jobs of one array task (``hydra/launcher=bench_slurm`` with ``pack`` > 1) differ mostly in plain
+    values; each job's config is a copy of the first of its kind with its values set as Hydra sets them,
+    the second of each kind checked against Hydra's full composition (any difference: full composition).
+    """
+
+    def __init__(self, loader) -> None:
+        self.loader = loader
+        self.original = loader.load_sweep_config
+        self.parser = OverridesParser.create()
+        self._parsed: dict[str, Override] = {}
+        self._groups: dict[str, bool] = {}
+        self._kinds: dict[tuple, dict] = {}
+
+    def _is_group(self, key: str) -> bool:
+        if key not in self._groups:
+            self._groups[key] = bool(self.loader.get_group_options(key, ObjectType.CONFIG))
+        return self._groups[key]
+
+    def __call__(self, master_config: DictConfig, sweep_overrides: list[str]) -> DictConfig:
+        import copy
+
+        for line in sweep_overrides:
+            if line not in self._parsed:
+                self._parsed[line] = self.parser.parse_overrides([line])[0]
+        parsed = [self._parsed[line] for line in sweep_overrides]
+        plain = [JobComposer._plain(self, o) for o in parsed]  # type: ignore[arg-type]
+        kind = tuple(o.key_or_group if p else o.input_line for o, p in zip(parsed, plain))
+        entry = self._kinds.get(kind)
+        if entry is None or not entry["ok"]:
+            cfg = self.original(master_config, sweep_overrides)
+            if entry is None:
+                self._kinds[kind] = {"cfg": copy.deepcopy(cfg), "checked": False, "ok": True}
+            return cfg
+        cfg = _patch(copy.deepcopy(entry["cfg"]), parsed, plain)
+        if not entry["checked"]:
+            entry["checked"] = True
+            truth = self.original(master_config, sweep_overrides)
+            if _fingerprint(truth) != _fingerprint(cfg):
+                entry["ok"] = False
+                return truth
+        return cfg

@@ -64,6 +64,11 @@ class PackedJobs:
         self.jobs = jobs
 
     def __call__(self) -> list[JobReturn]:
+        if len(self.jobs) > 1:  # Hydra's composition once per kind of job (checked), not once per job
+            from bench.run.compose_cache import SweepConfigCache
+
+            loader = self.launcher.hydra_context.config_loader
+            loader.load_sweep_config = SweepConfigCache(loader)
         return [self.launcher(*job) for job in self.jobs]
 
     def checkpoint(self, *args: Any, **kwargs: Any) -> Any:
