@@ -126,6 +126,7 @@ def test_two_array_tasks_on_one_job_folder_the_second_is_refused_and_nothing_is_
 ])
 def test_a_setting_the_cluster_refuses_is_one_message_exit_2_and_nothing_submitted(slurm_cluster, tmp_path,
                                                                                    setting, named):
+    slurm_cluster.idle()  # the jobs of earlier tests gone: the queue stays empty if nothing is submitted
     sweep = tmp_path / "s"
     proc = bench(slurm_cluster, *SPHERE, "seed=range(2)", "hydra/launcher=bench_slurm", setting,
                  f"hydra.sweep.dir={sweep}", cwd=tmp_path)
