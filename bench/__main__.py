@@ -26,10 +26,13 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from bench.errors import BenchError
 from bench.records import job_name
 from bench.run import callbacks, hydra_guard
+from bench.run.compose_cache import skip_sweeper_validation
 from bench.run.job import exit_with_the_sweep, plain, run_configured_job
 from bench.run.preflight import CONF_DIR, preflight_plan
+from bench.run.slurm_check import check_launcher
 
 log = logging.getLogger("bench")
 
@@ -133,6 +136,17 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(130) from None
     if code:
         raise SystemExit(code)
+    if plan is not None:  # a cluster launcher's settings, asked of the cluster before anything is submitted
+        try:
+            check_launcher(argv, CONF_DIR, plan.n_jobs)
+        except BenchError as err:
+            print(f"error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
+    if plan is not None and plan.sweep_dir is not None:  # for bench.status: the jobs not started yet
+        callbacks.LAST_SWEEP["planned"] = [str(d.relative_to(plan.sweep_dir)) for d in plan.job_dirs
+                                           if d.is_relative_to(plan.sweep_dir)]
+    if plan is not None:
+        skip_sweeper_validation()  # preflight composed every job: Hydra's sweeper need not again (~0.1 s a job)
     os.environ["BENCH_SWEEP_PID"] = str(os.getpid())  # launchers' local workers exit when it is gone
     os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""

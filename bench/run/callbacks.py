@@ -25,6 +25,7 @@ from bench.records import FolderLock, LockError, RecordError, open_no_follow
 log = logging.getLogger(__name__)
 
 OUTCOMES = ".outcomes.jsonl"
+PLANNED = ".jobs.txt"  # the sweep's job folders, relative, one a line (for bench.status: jobs not started yet)
 LAST_SWEEP: dict = {}
 
 
@@ -42,6 +43,13 @@ def note_outcome(sweep_dir: Path, num: int, label: str, outcome: dict) -> None:
             os.close(fd)
     except (OSError, RecordError) as err:  # the job is then counted as "did not report" at the end
         log.error("%s: cannot note its outcome in %s: %s", label, sweep_dir, err)
+
+
+def write_planned(sweep_dir: Path, job_dirs: list[str]) -> None:
+    """Write the sweep's job folders (relative to it) to ``PLANNED``, atomically."""
+    tmp = Path(sweep_dir) / f"{PLANNED}.{os.getpid()}.tmp"
+    tmp.write_text("".join(f"{d}\n" for d in job_dirs))
+    os.replace(tmp, Path(sweep_dir) / PLANNED)
 
 
 def read_outcomes(sweep_dir: Path) -> list[dict]:
@@ -70,6 +78,8 @@ class SweepReport(Callback):
         try:
             self._lock = FolderLock(sweep_dir, "sweep folder").acquire()
             (sweep_dir / OUTCOMES).write_text("")
+            if LAST_SWEEP.get("planned"):
+                write_planned(sweep_dir, LAST_SWEEP["planned"])
         except LockError as err:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
@@ -83,6 +93,9 @@ class SweepReport(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir))
+        if "submitted" in LAST_SWEEP:  # hydra.launcher.wait=false: the jobs run on after this process
+            self._submitted(sweep_dir, LAST_SWEEP.pop("submitted"))
+            return
         try:
             report_error, where = self._report(config, sweep_dir)
             outcomes = read_outcomes(sweep_dir)
@@ -106,6 +119,15 @@ class SweepReport(Callback):
               + (" (exit code 1)" if n_failed else ""))
         for line in where:  # the sweep's last lines: where its results are, report.html last
             print(line)
+
+    def _submitted(self, sweep_dir: Path, submitted: dict) -> None:
+        if self._lock is not None:
+            self._lock.release()
+        LAST_SWEEP.update(n_jobs=submitted["n_jobs"], n_failed=0)
+        print(f"Submitted: {submitted['n_jobs']} jobs in {submitted['n_tasks']} array tasks "
+              f"(SLURM job(s) {', '.join(submitted['job_ids'])}); they run on after this command.")
+        print(f"Follow:      python -m bench.status {sweep_dir}")
+        print(f"Report:      python -m bench.report {sweep_dir}   (when they have ended)")
 
     def _report(self, config: DictConfig, sweep_dir: Path) -> tuple[str | None, list[str]]:
         """(the report's error or None, the lines that say where the results are)."""

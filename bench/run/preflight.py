@@ -50,6 +50,7 @@ from bench.records import (
     read_record,
     refuse_symlink,
 )
+from bench.run.compose_cache import JobComposer, job_part
 from bench.run.design_checks import TruthWarnings, check_design
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
@@ -321,12 +322,6 @@ def _job_dir(hcfg) -> tuple[Path | None, Path | None]:
     return Path(str(sweep)), (Path(str(sweep)) / str(sub) if sub is not None else None)
 
 
-def _job_part(hcfg) -> dict:
-    """The job's own config (Hydra's node left out), resolved, as plain data."""
-    node = OmegaConf.masked_copy(hcfg, [k for k in hcfg if k != "hydra"])
-    return OmegaConf.to_container(node, resolve=True)
-
-
 def plan(argv: list[str]) -> SweepPlan:
     """Validate every job the command line would run; raise ConfigError/HydraException at the first problem."""
     GlobalHydra.instance().clear()
@@ -340,10 +335,13 @@ def plan(argv: list[str]) -> SweepPlan:
             if len(jobs) > 4:
                 print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
             truths = TruthWarnings()
+            composer = JobComposer(hydra_overrides)  # Hydra's full composition once per kind of job
             for job_overrides in jobs:
-                hcfg = compose("config", overrides=job_overrides + hydra_overrides, return_hydra_config=True)
-                cfg = _job_part(hcfg)
-                key = json.dumps(identity_of(cfg), sort_keys=True, default=str)
+                hcfg = composer(job_overrides)
+                cfg = job_part(hcfg)
+                seed_of(cfg)  # each distinct problem and optimiser configuration is checked once, whatever the seed
+                key = json.dumps({k: v for k, v in identity_of(cfg).items() if k != "seed"}, sort_keys=True,
+                                 default=str)
                 if key not in seen:
                     seen.add(key)
                     check_design(cfg)  # the instance and the report's settings, before the problem is built
