@@ -256,6 +256,8 @@ def _as_flops(x):
         out = np.empty(x.shape, dtype=object)
         out.ravel()[:] = [Flop(v) for v in x.ravel()]
         return out
+    if isinstance(x, tuple) and hasattr(x, "_fields"):  # the kernel's named structures (avio/filter/interface.py)
+        return type(x)(*(_as_flops(v) for v in x))
     return Flop(x) if isinstance(x, float) else x
 
 

@@ -35,6 +35,7 @@ import pandas as pd
 from bench.errors import BenchError
 from bench.report import resolution as res
 from bench.report.verdict import POSTHOCS, Verdicts, verdicts
+from bench.verdict_settings import METRIC_ROPES
 
 REFERENCE = "reference"
 OBJECTIVE = "best_f"
@@ -97,8 +98,8 @@ def check_settings(raw: Mapping, problems: list[str] | None = None) -> VerdictSe
     for name, value in values:
         if value < 0:
             raise SettingsError(f"verdict.rope{'.' + name if name else ''} must be >= 0, got {value!r}")
-    if isinstance(rope, dict) and problems is not None:
-        bad = sorted(set(rope) - set(problems))
+    if isinstance(rope, dict) and problems is not None:  # also "default" and the calibration errors' names
+        bad = sorted(set(rope) - set(problems) - {"default"} - set(METRIC_ROPES))
         if bad:
             raise SettingsError(f"verdict.rope.{bad[0]}: no such problem in the records; problems: "
                                 f"{', '.join(sorted(set(problems)))}")
@@ -200,11 +201,13 @@ def add_reference_errors(runs: pd.DataFrame, records: pd.DataFrame) -> pd.DataFr
     return runs.assign(**extra)
 
 
-def questions(runs: pd.DataFrame) -> dict[str, tuple[str, str | None, float | None]]:
+def questions(runs: pd.DataFrame, settings_rope=None) -> dict[str, tuple[str, str | None, float | None]]:
     """question -> (value column of the optimisers, column of the reference row or None, ROPE or
     None for the objective's own): the objective, and each calibration error the runs carry."""
     out = {OBJECTIVE: (OBJECTIVE, "f_reference", None)}
     for name, rope in ERROR_ROPES.items():
+        if isinstance(settings_rope, Mapping) and name in settings_rope:  # the sweep's own ROPE
+            rope = float(settings_rope[name])
         col = f"m.{name}"
         if col in runs.columns and runs[col].notna().any():
             ref = f"ref.{name}" if f"ref.{name}" in runs.columns and runs[f"ref.{name}"].notna().any() else None
@@ -249,8 +252,9 @@ def _rope_of(settings: VerdictSettings, runs: pd.DataFrame, problems: list[str])
     if not isinstance(settings.rope, Mapping):
         return settings.rope
     names = runs.drop_duplicates("problem").set_index("problem")["problem_name"]
+    default = settings.rope.get("default", 0.0)
     # a ROPE given for a plain problem name holds for each of its labelled settings
-    return {p: settings.rope.get(p, settings.rope.get(str(names.get(p, p)), 0.0)) for p in problems}
+    return {p: settings.rope.get(p, settings.rope.get(str(names.get(p, p)), default)) for p in problems}
 
 
 def paired_verdicts(runs: pd.DataFrame, settings: VerdictSettings, seed: int = 0,
@@ -258,7 +262,7 @@ def paired_verdicts(runs: pd.DataFrame, settings: VerdictSettings, seed: int = 0
     """Every question's verdicts (module doc) from ``runs`` (``runs_table`` + ``add_reference_errors``)."""
     key, note = pairing_key(runs, settings)
     out = Paired(key, note, settings)
-    for question, (column, reference, rope) in questions(runs).items():
+    for question, (column, reference, rope) in questions(runs, settings.rope).items():
         if question != OBJECTIVE:  # only the problems whose runs carry this error (the truth is known)
             known = runs.groupby("problem")[column].transform(lambda v: v.notna().any())
             sub = runs[known]

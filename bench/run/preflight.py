@@ -53,7 +53,7 @@ from bench.records import (
 from bench.run.compose_cache import JobComposer, job_part
 from bench.run.design_checks import TruthWarnings, check_design
 from bench.run.identity import config_hash, identity_differences
-from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, progress_every_s_of, seed_of
+from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, instance_of, progress_every_s_of, seed_of
 from bench.run.log_checks import linked_file
 from bench.space import Space
 
@@ -322,6 +322,11 @@ def _job_dir(hcfg) -> tuple[Path | None, Path | None]:
     return Path(str(sweep)), (Path(str(sweep)) / str(sub) if sub is not None else None)
 
 
+def _job_part(hcfg) -> dict:
+    """The job's own config (Hydra's node left out), resolved, as plain data."""
+    return OmegaConf.to_container(OmegaConf.masked_copy(hcfg, [k for k in hcfg if k != "hydra"]), resolve=True)
+
+
 def plan(argv: list[str]) -> SweepPlan:
     """Validate every job the command line would run; raise ConfigError/HydraException at the first problem."""
     GlobalHydra.instance().clear()
@@ -339,7 +344,7 @@ def plan(argv: list[str]) -> SweepPlan:
             for job_overrides in jobs:
                 hcfg = composer(job_overrides)
                 cfg = job_part(hcfg)
-                seed_of(cfg)  # each distinct problem and optimiser configuration is checked once, whatever the seed
+                instance_of(cfg), seed_of(cfg)  # each configuration checked once below
                 key = json.dumps({k: v for k, v in identity_of(cfg).items() if k != "seed"}, sort_keys=True,
                                  default=str)
                 if key not in seen:

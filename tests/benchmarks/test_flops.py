@@ -42,8 +42,8 @@ def test_the_counted_run_computes_the_kernels_bits(flops):
     cfg = FilterConfig(max_update_features=6)
     counts, args = flops.twin_run(seq, seq.truth_calibration, cfg)
     want = run(seq, seq.truth_calibration, cfg)
-    for name, field in (("out_p", "p_world_imu_m"), ("out_R", "R_world_imu"), ("out_sig", "sigma"), ("out_nll", "nll")):
-        got = np.asarray(args[name], dtype=float)
+    for name, field in (("p", "p_world_imu_m"), ("R", "R_world_imu"), ("sigma", "sigma"), ("nll", "nll")):
+        got = np.asarray(getattr(args["out"], name), dtype=float)  # avio/filter/interface.py: Outputs
         assert np.array_equal(got, getattr(want, field)), name
     assert counts["RANSAC"] > 0 and counts["measurement"] > 0
     # The workspaces are allocated once per run, not per frame (what docs/gpu.md quotes per filter).

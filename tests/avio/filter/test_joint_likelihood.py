@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from avio.filter.interface import Calibrations, FilterState, Settings, UpdateWorkspaces
 from avio.filter.measurement import measure, measure_workspace
 from avio.filter.update import (
     MODE_NONE,
@@ -66,12 +67,19 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
         Rs, ps, P, uv = _scene(rng)
         F = uv.shape[0]
         nis_d, lds_d, m = _dense(Rs, ps, P, uv, sigma)
-        state = [Rs[2].copy(), ps[2].copy(), np.zeros(3), np.zeros(3), np.zeros(3), ps[0].copy(), Rs[0].copy(),
-                 ps[1].copy(), Rs[1].copy(), P.copy()]
-        used, rejected, nis, lds, dof, _, slots = update(
-            *state, np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU, np.zeros(3), uv, np.ones(F, np.bool_), sigma,
-            np.inf, 0.0, MODE_NONE, 3.0, 11.34, update_workspace(F), measure_workspace(), noise_workspace(F),
-            outlier_workspace(F), False, np.zeros(F, np.uint8))
+        x = FilterState(R=Rs[2].copy(), p=ps[2].copy(), v=np.zeros(3), ba=np.zeros(3), bg=np.zeros(3),
+                        cp0=ps[0].copy(), cR0=Rs[0].copy(), cp1=ps[1].copy(), cR1=Rs[1].copy(), P=P.copy())
+        fx, fy, cx, cy = INTRINSICS
+        cal = Calibrations(fx=np.array([fx]), fy=np.array([fy]), cx=np.array([cx]), cy=np.array([cy]),
+                           R_cam_imu=R_CAM_IMU[None].copy(), p_imu_cam_m=np.zeros((1, 3)), td_s=np.zeros(1),
+                           frozen=np.zeros(1, np.bool_))
+        cfg = Settings(sigma_px=sigma, max_transfer_gain=np.inf, min_parallax_m=0.0, mode=MODE_NONE,
+                       ransac_threshold_sigma=3.0, chi2_threshold=11.34, zero_velocity_sigma_mps=0.0,
+                       max_variance=np.inf, max_speed_mps=np.inf)
+        ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
+                              outliers=outlier_workspace(F))
+        used, rejected, nis, lds, dof, _, slots = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg, ws,
+                                                         False, np.zeros(F, np.uint8))
         assert (used, rejected, dof, slots) == (F, 0, m, m)
         assert nis > 1.0
         np.testing.assert_allclose(nis, nis_d, rtol=1e-7)
