@@ -47,7 +47,7 @@ def main() -> None:
         cluster.start(socket.gethostname().split(".")[0])
         try:
             sweep = tmp / "s"
-            argv = ["problem=sphere", "optimizer=random", f"seed=range({args.jobs})", f"budget.evals={args.evals}",
+            argv = ["problem=sphere", "optimizer=random", f"instance=range({args.jobs})", f"budget.evals={args.evals}",
                     "report=false", "progress=false", f"hydra.sweep.dir={sweep}"]
             cpu0 = time.process_time()
             plan(argv)

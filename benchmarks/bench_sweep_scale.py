@@ -27,7 +27,7 @@ def main() -> None:
     args = parser.parse_args()
     seeds = max(1, args.jobs // 6)
     with tempfile.TemporaryDirectory() as tmp:
-        argv = ["problem=sphere", f"optimizer={OPTIMIZERS}", f"seed=range({seeds})", f"budget.evals={args.evals}",
+        argv = ["problem=sphere", f"optimizer={OPTIMIZERS}", f"instance=range({seeds})", f"budget.evals={args.evals}",
                 f"hydra.sweep.dir={tmp}/s"]
         wall0, cpu0 = time.perf_counter(), time.process_time()
         result = plan(argv)

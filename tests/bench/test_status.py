@@ -15,7 +15,7 @@ from bench.status import sweep_status
 
 pytestmark = pytest.mark.slow
 
-SLOW = ["problem=sphere", "problem.params.delay_s_per_batch=0.15", "optimizer=random", "seed=range(3)",
+SLOW = ["problem=sphere", "problem.params.delay_s_per_batch=0.15", "optimizer=random", "instance=range(3)",
         "budget.evals=400", "report=false", "progress=false"]
 
 
@@ -42,20 +42,20 @@ def test_status_of_a_running_then_killed_sweep(tmp_path):
         shown = status_cli(sweep)  # from another process, as from another shell
         assert shown.returncode == 0, shown.stderr
         assert "1 finished, 1 running, 0 failed, 0 refused, 0 interrupted, 1 not started" in shown.stdout
-        assert "sphere/random/seed1 (running)" in shown.stdout
+        assert "sphere/random/i1 (running)" in shown.stdout
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
     status = sweep_status(sweep)  # the lock went with the process: the cut job is interrupted, not running
-    assert status.jobs["interrupted"] == ["sphere/random/seed1"] and status.jobs["not started"] == [
-        "sphere/random/seed2"]
-    record = sweep / "sphere" / "random" / "seed0" / "record.json"
+    assert status.jobs["interrupted"] == ["sphere/random/i1"] and status.jobs["not started"] == [
+        "sphere/random/i2"]
+    record = sweep / "sphere" / "random" / "i0" / "record.json"
     data = json.loads(record.read_text())
     record.write_text(json.dumps({**data, "status": "failed", "error": {"type": "X", "message": "deliberate"}}))
     shown = status_cli(sweep, "--json")
     listed = json.loads(shown.stdout)
-    assert listed["jobs"]["failed"] == ["sphere/random/seed0"] and listed["messages"] == {
-        "sphere/random/seed0": "X: deliberate"}
+    assert listed["jobs"]["failed"] == ["sphere/random/i0"] and listed["messages"] == {
+        "sphere/random/i0": "X: deliberate"}
 
 
 @pytest.mark.parametrize("make", ["missing", "file", "empty"])

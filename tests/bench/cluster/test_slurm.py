@@ -44,7 +44,7 @@ def logs(sweep: Path) -> dict[str, list]:
 def serial(tmp_path_factory, slurm_cluster):
     """The serial (basic launcher) runs the cluster sweeps are compared with."""
     root = tmp_path_factory.mktemp("serial")
-    for name, args in (("fast", [*SPHERE, "seed=range(4)"]), ("slow", [*SLOW, "seed=range(3)"])):
+    for name, args in (("fast", [*SPHERE, "instance=range(4)"]), ("slow", [*SLOW, "instance=range(3)"])):
         proc = bench(slurm_cluster, *args, f"hydra.sweep.dir={root / name}", cwd=root)
         assert proc.returncode == 0, proc.stderr[-2000:]
     return root
@@ -52,7 +52,7 @@ def serial(tmp_path_factory, slurm_cluster):
 
 def test_a_submitit_slurm_sweep_equals_the_serial_run(slurm_cluster, serial, tmp_path):
     sweep = tmp_path / "s"
-    proc = bench(slurm_cluster, *SPHERE, "seed=range(4)", "hydra/launcher=submitit_slurm", *ON_SLURM,
+    proc = bench(slurm_cluster, *SPHERE, "instance=range(4)", "hydra/launcher=submitit_slurm", *ON_SLURM,
                  f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "Jobs: 4 in all, 4 ok, 0 failed" in proc.stdout
@@ -62,7 +62,7 @@ def test_a_submitit_slurm_sweep_equals_the_serial_run(slurm_cluster, serial, tmp
 
 def test_packed_jobs_split_into_arrays_equal_the_serial_run(slurm_cluster, serial, tmp_path):
     sweep = tmp_path / "s"
-    proc = bench(slurm_cluster, *SPHERE, "seed=range(4)", "hydra/launcher=bench_slurm", *ON_SLURM,
+    proc = bench(slurm_cluster, *SPHERE, "instance=range(4)", "hydra/launcher=bench_slurm", *ON_SLURM,
                  "hydra.launcher.pack=3", "hydra.launcher.max_array_size=1", f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     # 4 jobs, 3 a task: 2 tasks; at most 1 task an array: 2 arrays (SLURM jobs)
@@ -83,19 +83,19 @@ def _wait_for(predicate, timeout: float = 120.0):
 
 def test_scancel_then_the_same_command_skips_finished_jobs_and_resumes_killed_ones(slurm_cluster, serial, tmp_path):
     sweep = tmp_path / "s"
-    args = [*SLOW, "seed=range(3)", "hydra/launcher=bench_slurm", *ON_SLURM, NO_SRUN, f"hydra.sweep.dir={sweep}"]
+    args = [*SLOW, "instance=range(3)", "hydra/launcher=bench_slurm", *ON_SLURM, NO_SRUN, f"hydra.sweep.dir={sweep}"]
     started = time.time()
     proc = bench(slurm_cluster, *args, "hydra.launcher.wait=false", cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert time.time() - started < 60 and "Submitted: 3 jobs in 3 array tasks" in proc.stdout
     job_id = proc.stdout.split("SLURM job(s) ")[1].split(")")[0]
     # the node's 2 CPUs run seeds 0 and 1, then seed 2: cancel the array once seed 2 has logged 2 batches
-    last = sweep / "sphere" / "random" / "seed2"
+    last = sweep / "sphere" / "random" / "i2"
     _wait_for(lambda: (last / "evals.jsonl").exists() and len(read_eval_log(last)) >= 2)
     assert slurm_cluster.run("scancel", job_id).returncode == 0
     slurm_cluster.idle()
     done = {p.parent.name: p.stat().st_mtime_ns for p in sweep.rglob("record.json")}
-    assert sorted(done) == ["seed0", "seed1"]
+    assert sorted(done) == ["i0", "i1"]
     assert 2 <= len(read_eval_log(last)) < 10
 
     again = bench(slurm_cluster, *args, cwd=tmp_path)
@@ -107,13 +107,13 @@ def test_scancel_then_the_same_command_skips_finished_jobs_and_resumes_killed_on
 def test_two_array_tasks_on_one_job_folder_the_second_is_refused_and_nothing_is_lost(slurm_cluster, serial,
                                                                                       tmp_path):
     sweep = tmp_path / "s"
-    # seed=1,1: two jobs, one folder; the node's 2 CPUs run both tasks at once
-    proc = bench(slurm_cluster, *SLOW, "seed=1,1", "hydra/launcher=bench_slurm", *ON_SLURM,
+    # instance=1,1: two jobs, one folder; the node's 2 CPUs run both tasks at once
+    proc = bench(slurm_cluster, *SLOW, "instance=1,1", "hydra/launcher=bench_slurm", *ON_SLURM,
                  f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert "Jobs: 2 in all, 1 ok, 1 failed (exit code 1)" in proc.stdout
     assert "refused: job" in proc.stdout and "is in use by pid" in proc.stdout
-    job = "sphere/random/seed1"
+    job = "sphere/random/i1"
     assert records(sweep) == {job: records(serial / "slow")[job]}
     assert logs(sweep) == {job: logs(serial / "slow")[job]}
 
@@ -128,7 +128,7 @@ def test_a_setting_the_cluster_refuses_is_one_message_exit_2_and_nothing_submitt
                                                                                    setting, named):
     slurm_cluster.idle()  # the jobs of earlier tests gone: the queue stays empty if nothing is submitted
     sweep = tmp_path / "s"
-    proc = bench(slurm_cluster, *SPHERE, "seed=range(2)", "hydra/launcher=bench_slurm", setting,
+    proc = bench(slurm_cluster, *SPHERE, "instance=range(2)", "hydra/launcher=bench_slurm", setting,
                  f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-3000:]
     errors = [x for x in proc.stderr.splitlines() if x.startswith("error:")]

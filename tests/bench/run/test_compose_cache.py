@@ -10,7 +10,7 @@ from bench.run.preflight import CONF_DIR, _job_dir, _job_part, expand_jobs
 
 
 def test_shortcut_configs_equal_hydras_for_every_job():
-    argv = ["problem=sphere,rastrigin", "optimizer=random,pso", "seed=range(2)", "budget.evals=10,20",
+    argv = ["problem=sphere,rastrigin", "optimizer=random,pso", "instance=0", "seed=range(2)", "budget.evals=10,20",
             "progress_every_s=2.5", "hydra.sweep.dir=/tmp/x", "hydra.sweep.subdir=${hydra.job.override_dirname}"]
     hydra_overrides = argv[-2:]
     GlobalHydra.instance().clear()
