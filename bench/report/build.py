@@ -68,6 +68,7 @@ from bench.report.curves import anytime_curves, run_traces
 from bench.report.figures import anytime_figure, ecdf_figure, final_values_figure, objective_error_figure
 from bench.report.leaderboard import leaderboard, runs_table, verdict_box
 from bench.report.paired import (
+    INSTANCE_SEED,
     OBJECTIVE,
     REFERENCE,
     VerdictSettings,
@@ -149,7 +150,8 @@ def _settings(roots: list[Path], records: pd.DataFrame, runs: pd.DataFrame,
     if settings.key not in runs.columns and settings.key in records.columns:
         runs = runs.assign(**{settings.key: runs["job_dir"].map(
             dict(zip(records["job_dir"].astype(str), records[settings.key])))})
-    pairing_key(runs, settings)  # a key the records lack: SettingsError before any work
+    if pairing_key(runs, settings)[0] == INSTANCE_SEED:  # a key the records lack: SettingsError before any work
+        runs = runs.assign(**{INSTANCE_SEED: runs["instance"].astype(str) + "/" + runs["seed"].astype(str)})
     return settings, runs
 
 

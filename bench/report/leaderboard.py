@@ -163,13 +163,14 @@ def _fixed_by(instances: pd.Series | None, settings: pd.Series, key: str) -> boo
 
 
 def _refuse_duplicate_seeds(runs: pd.DataFrame) -> None:
-    dup = runs[runs.duplicated(["problem", "optimizer", "seed"], keep=False)]
+    cols = ["problem", "optimizer", *(["instance"] if "instance" in runs.columns else []), "seed"]
+    dup = runs[runs.duplicated(cols, keep=False)]
     if len(dup):
         first = dup.iloc[0]
-        same = dup[(dup["problem"] == first["problem"]) & (dup["optimizer"] == first["optimizer"])
-                   & (dup["seed"] == first["seed"])]
+        same = dup[(dup[cols] == first[cols]).all(axis=1)]
+        where = f" of instance {first['instance']}" if "instance" in cols else ""
         raise LeaderboardError(
-            f"seed {first['seed']} of {first['problem']}/{first['optimizer']} is in {len(same)} records "
+            f"seed {first['seed']}{where} of {first['problem']}/{first['optimizer']} is in {len(same)} records "
             f"({', '.join(same['job_dir'])}): the same job run more than once; report one of the folders "
             "so that no seed is counted twice")
 

@@ -44,6 +44,9 @@ ERROR_ROPES = {"rotation_error_deg": 0.05, "focal_error_px": 0.5, "principal_poi
                "translation_error_cm": 0.5, "ray_error_deg": 0.05}
 FALLBACK_KEY = "seed"
 SEED_NOTE = "runs are not paired on instances; seeds used as blocks"
+INSTANCE_SEED = "instance/seed"
+INSTANCE_SEED_NOTE = ("several seeds per instance: runs are paired on (instance, seed), so the blocks are repeats "
+                      "on shared instances, not independent instances")
 SETTING_KEYS = ("test", "family", "rope", "alpha", "key")
 
 
@@ -144,6 +147,8 @@ def pairing_key(runs: pd.DataFrame, settings: VerdictSettings) -> tuple[str, str
     default ``instance``, not asked for, falls back to ``seed`` for records without it."""
     key = settings.key
     if key in runs.columns and runs[key].notna().all():
+        if key == "instance" and "seed" in runs.columns and runs.duplicated(["problem", "optimizer", key]).any():
+            return INSTANCE_SEED, INSTANCE_SEED_NOTE  # several seeds per instance: (instance, seed) blocks
         return key, ""
     if settings.key_given and key in runs.columns:
         raise SettingsError(f"verdict.key: some records lack the field {key!r} to pair on")

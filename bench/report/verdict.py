@@ -324,7 +324,9 @@ def cd_diagram(ranks: pd.Series | Mapping[str, float], cd: float, path: str | Pa
 
     from bench.report.figures import save_figure
 
-    ranks = pd.Series(ranks, dtype=float).sort_index()
+    # rounded: mean ranks summed in another order (records read in another order) differ in the last
+    # bits, which moves tied labels by a pixel and breaks the byte-identical rebuild
+    ranks = pd.Series(ranks, dtype=float).round(9).sort_index()
     gap = np.abs(ranks.to_numpy()[:, None] - ranks.to_numpy()[None, :])
     # the diagram takes a p-matrix: 0 (different) where the rank gap exceeds the CD, else 1
     sig = pd.DataFrame(np.where(gap > cd, 0.0, 1.0), index=ranks.index, columns=ranks.index)

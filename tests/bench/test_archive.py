@@ -29,16 +29,16 @@ def _bench(*args, cwd):
 def sweep(tmp_path_factory):
     root = tmp_path_factory.mktemp("archive")
     sweep = root / "small"
-    _bench("bench", "problem=sphere", "optimizer=random,cmaes", "seed=range(3)", "budget.evals=24", "progress=false",
+    _bench("bench", "problem=sphere", "optimizer=random,cmaes", "instance=range(3)", "budget.evals=24", "progress=false",
            f"hydra.sweep.dir={sweep}", cwd=root)
     return sweep
 
 
 def test_the_report_is_rebuilt_byte_for_byte_from_the_archive_alone(sweep, tmp_path):
-    report = _files(sweep / "report")
     records = {k: v for k, v in _files(sweep).items() if not k.startswith("report/") and not k.endswith(".lock")}
     assert any(k.endswith("evals.jsonl") for k in records)
-    _bench("bench.report", str(sweep), "--pack", cwd=sweep.parent)
+    _bench("bench.report", str(sweep), "--pack", cwd=sweep.parent)  # the committed results' step: build, then pack
+    report = _files(sweep / "report")
     left = _files(sweep)
     assert ARCHIVE in left and not any(k.endswith(("record.json", "evals.jsonl")) for k in left), sorted(left)
     (sweep / "report").rename(tmp_path / "first")
