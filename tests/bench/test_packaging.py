@@ -58,7 +58,7 @@ def test_installed_wheel_runs_a_small_sweep_outside_the_checkout(wheel, tmp_path
     assert Path(where.stdout.strip()).is_relative_to(venv)
     sweep = tmp_path / "sweep"
     done = subprocess.run([str(venv / "bin" / "avio-bench"), "problem=sphere", "optimizer=random", "budget.evals=20",
-                           "seed=0", "report=false", f"hydra.sweep.dir={sweep}"],
+                           "instance=0", "report=false", f"hydra.sweep.dir={sweep}"],
                           cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     (record,) = sweep.rglob("record.json")
