@@ -12,13 +12,13 @@ from bench.run.job import identity_of, import_plugins, instance_of
 from bench.verdict_settings import VerdictSettings, verdict_settings
 
 
-def _paths(node, prefix: str = "") -> list[str]:
+def dotted_paths(node, prefix: str = "") -> list[str]:
     """Every key of a config as a dotted path (sections and leaves)."""
     out = []
     if isinstance(node, dict):
         for key, value in node.items():
             path = f"{prefix}.{key}" if prefix else str(key)
-            out += [path, *_paths(value, path)]
+            out += [path, *dotted_paths(value, path)]
     return out
 
 
@@ -34,7 +34,7 @@ def check_design(cfg: dict) -> VerdictSettings:
 def check_verdict(cfg: dict) -> VerdictSettings:
     """The job config's ``verdict:`` settings, checked against the keys its record will carry
     (its identity: ``instance``, ``seed``, ``problem.params.data_seed``, ...); VerdictSettingsError."""
-    return verdict_settings(cfg.get("verdict"), keys=_paths(identity_of(cfg)))
+    return verdict_settings(cfg.get("verdict"), keys=dotted_paths(identity_of(cfg)))
 
 
 def truth_outside(problem) -> list[tuple[str, str, float, float, float]]:

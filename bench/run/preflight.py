@@ -51,7 +51,7 @@ from bench.records import (
     refuse_symlink,
 )
 from bench.run.compose_cache import JobComposer, job_part
-from bench.run.design_checks import TruthWarnings, check_design
+from bench.run.design_checks import TruthWarnings, check_design, dotted_paths
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, instance_of, progress_every_s_of, seed_of
 from bench.run.log_checks import linked_file
@@ -89,16 +89,6 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     return BasicSweeper.split_arguments(parsed, None)[0]
 
 
-def _dotted(node, prefix: str = "") -> list[str]:
-    """Every key of a config as a dotted path (sections and leaves)."""
-    paths = []
-    if isinstance(node, dict):
-        for key, value in node.items():
-            path = f"{prefix}.{key}" if prefix else str(key)
-            paths += [path, *_dotted(value, path)]
-    return paths
-
-
 def _nearest_key(key: str, paths: list[str]) -> str | None:
     """The valid key nearest to ``key``, comparing it with whole paths and with their last part
     (``evals`` -> ``budget.evals``)."""
@@ -133,10 +123,11 @@ def check_keys(argv: list[str]) -> None:
             continue
         if loader.get_group_options(key, ObjectType.CONFIG, config_name="config", overrides=search):
             continue  # +group=option: a config group (Hydra checks the option)
-        paths = _dotted(OmegaConf.to_container(compose("config", overrides=search)))
+        paths = dotted_paths(OmegaConf.to_container(compose("config", overrides=search)))
         for group in ("problem", "optimizer"):
             for yaml in sorted((CONF_DIR / group).glob("*.yaml")):
-                paths += [p for p in _dotted(OmegaConf.to_container(OmegaConf.load(yaml)), group) if p not in paths]
+                found = dotted_paths(OmegaConf.to_container(OmegaConf.load(yaml)), group)
+                paths += [p for p in found if p not in paths]
         nearest = _nearest_key(key, paths)
         hint = f"did you mean {nearest}? " if nearest else ""
         raise ConfigError(f"{override.input_line}: the config has no key {top!r}, so nothing would read it; "

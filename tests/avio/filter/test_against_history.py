@@ -16,11 +16,11 @@ import time
 import git_reference
 import numpy as np
 import pytest
+from test_batch import _candidates, _subset
 from test_filter import make_circle_sequence
 
 from avio.calibration import Calibration
 from avio.filter import FilterConfig, prepare, run, set_threads
-from avio.geometry import so3_exp
 
 #: The commit whose filter today's must equal bit for bit (full sha; ``git log -1 --format=%H``).
 #: Move it forward only to a commit whose outputs were checked equal to the previous pin's, or
@@ -54,24 +54,6 @@ def _frozen_cal(pkg, cal: Calibration):
 
 
 _CAL_FIELDS = ("fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m", "time_offset_s")
-
-
-def _candidates(cal: Calibration, n: int, seed: int) -> Calibration:
-    """n perturbed calibrations around cal (one wild focal length, one non-finite)."""
-    rng = np.random.default_rng(seed)
-    c = cal.repeat(n)
-    fx = c.fx_px + rng.normal(0, 5, n)
-    fx[-1] *= 1.6
-    fx[n // 2] = np.nan
-    return Calibration(fx_px=fx, fy_px=c.fy_px + rng.normal(0, 5, n), cx_px=c.cx_px + rng.normal(0, 5, n),
-                       cy_px=c.cy_px + rng.normal(0, 5, n),
-                       R_cam_imu=so3_exp(rng.normal(0, 0.01, (n, 3))) @ c.R_cam_imu,
-                       p_imu_cam_m=c.p_imu_cam_m + rng.normal(0, 0.05, (n, 3)),
-                       time_offset_s=rng.normal(0, 0.003, n))
-
-
-def _subset(cal: Calibration, idx) -> Calibration:
-    return Calibration(*(np.asarray(getattr(cal, k))[idx] for k in _CAL_FIELDS))
 
 
 def _arrays(result) -> dict[str, np.ndarray]:
