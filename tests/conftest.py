@@ -84,3 +84,26 @@ def load_script(request):
         return module
 
     return load
+
+
+def _cpu_quota() -> float | None:
+    """Cores the cgroup lets this process use (``cpu.max`` v2, or v1's quota/period); None when unlimited."""
+    for quota_file, period_file in (("/sys/fs/cgroup/cpu.max", None),
+                                    ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us")):
+        try:
+            text = Path(quota_file).read_text().split()
+            quota, period = text[0], (text[1] if period_file is None else Path(period_file).read_text().strip())
+        except (OSError, IndexError):
+            continue
+        if quota not in ("max", "-1"):
+            return int(quota) / int(period)
+    return None
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: one worker per core this process may use. xdist counts the machine's cores, which
+    in a container can be far more than its CPU quota; each extra worker compiles the filter kernel
+    again and the suite slows down instead of speeding up."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    quota = _cpu_quota()
+    return max(1, min(cores, int(quota) if quota else cores))

@@ -333,7 +333,11 @@ def cd_diagram(ranks: pd.Series | Mapping[str, float], cd: float, path: str | Pa
     fig = Figure(figsize=(6.0, 1.4 + 0.25 * len(ranks)))
     fig.subplots_adjust(left=0.2, right=0.8, top=0.62, bottom=0.04)  # room for the CD bar and the labels
     ax = fig.add_subplot()
-    sp.critical_difference_diagram(ranks, sig, ax=ax, alpha=0.05)
+    drawn = sp.critical_difference_diagram(ranks, sig, ax=ax, alpha=0.05)
+    # the library draws each crossbar through a set's members in hash order, which varies between
+    # processes (PYTHONHASHSEED) and moves anti-aliased pixels: redraw each through them in rank order
+    for bar in (line for group in drawn["crossbars"] for line in group):
+        bar.set_data(np.sort(bar.get_xdata()), bar.get_ydata())
     # the CD bar drawn here, not by the library, whose bar sits on the rank tick labels
     where = blended_transform_factory(ax.transData, ax.transAxes)
     x0 = float(ranks.min())

@@ -1,5 +1,10 @@
 """Verdicts of a paired design: floors, planted differences, twins, hand-made ranks, CD, bad input."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -23,6 +28,8 @@ from bench.report.verdict import (
     posthoc,
     verdicts,
 )
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def design(shifts: dict[str, float], n: int, rng: np.random.Generator, noise: float = 1.0,
@@ -145,6 +152,20 @@ def test_cd_diagram_is_deterministic(tmp_path):
     first = cd_diagram(ranks, 1.05, tmp_path / "a.png").read_bytes()
     second = cd_diagram(ranks, 1.05, tmp_path / "b.png").read_bytes()
     assert first == second and b"Software" not in first
+
+
+def test_cd_diagram_is_the_same_in_every_process(tmp_path):
+    # three optimisers under one crossbar: the library iterates a set of them, whose order follows
+    # PYTHONHASHSEED; the committed report's rebuild compares bytes across processes
+    code = ("import sys, pandas as pd; from bench.report.verdict import cd_diagram; "
+            "cd_diagram(pd.Series({'cmaes': 1.3, 'random': 2.3, 'reference': 2.3, 'tpe': 2.4}), 1.9, sys.argv[1])")
+    shots = []
+    for seed in ("1", "2", "3", "4"):
+        path = tmp_path / f"cd{seed}.png"
+        subprocess.run([sys.executable, "-c", code, str(path)], check=True, cwd=ROOT,
+                       env={**os.environ, "PYTHONHASHSEED": seed, "PYTHONPATH": str(ROOT)})
+        shots.append(path.read_bytes())
+    assert all(shot == shots[0] for shot in shots)
 
 
 # --- bad input ---------------------------------------------------------------------------------
