@@ -121,3 +121,28 @@ def records_restored(dirs: list[str | Path]) -> Iterator[None]:
     finally:
         for d, members in restored:
             _remove(d, members)
+
+
+def job_records(sweep_dir: str | Path, pattern: str = "*/*/*/record.json") -> list[tuple[Path, dict]]:
+    """Every job record of a sweep folder matching ``pattern`` (relative to the folder, glob syntax):
+    ``(relative path, record)`` sorted by path, read from the files, or from ``records.tar.xz`` when
+    the folder holds only the archive (read in memory, nothing written). For the studies' scripts,
+    which read best points, not the logs."""
+    import fnmatch
+    import json
+
+    sweep_dir = Path(sweep_dir)
+    if has_records(sweep_dir):
+        return [(p.relative_to(sweep_dir), json.loads(p.read_text())) for p in sorted(sweep_dir.glob(pattern))]
+    archive = sweep_dir / ARCHIVE
+    if not archive.is_file():
+        return []
+    found = []
+    try:
+        with tarfile.open(archive, mode="r:xz") as tar:
+            for member in tar:
+                if member.isfile() and fnmatch.fnmatchcase(member.name, pattern):
+                    found.append((Path(member.name), json.loads(tar.extractfile(member).read())))
+    except (tarfile.TarError, lzma.LZMAError, EOFError) as err:
+        raise ArchiveError(f"{archive}: unreadable archive ({err})") from None
+    return sorted(found, key=lambda item: item[0].as_posix())

@@ -27,7 +27,6 @@ likelihood runs (results/kitti00_tracks_nll_rotation), so the two can be compare
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -99,8 +98,9 @@ def committed_likelihood_corrections(folder: Path) -> list[np.ndarray]:
 
     rect = kitti_2011_10_03_calibration(rectified=True).R_cam_imu[0]
     out = []
-    for path in sorted(folder.glob("*/*/seed*/record.json")):
-        record = json.loads(path.read_text())
+    from bench.archive import job_records
+
+    for _, record in job_records(folder):  # files or records.tar.xz
         if record.get("status") != "ok":
             continue
         problem = build_problem(record["config"])

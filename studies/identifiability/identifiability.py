@@ -40,6 +40,7 @@ from avio.calibration import (
     ray_error_deg,
 )
 from avio.metrics import position_rmse_objective
+from bench.archive import job_records
 from bench.problems.synthetic import Synthetic, SyntheticParams
 from bench.problems.vio import _plain
 from bench.report import stats
@@ -49,12 +50,14 @@ ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "t
 
 def load(folder: Path) -> pd.DataFrame:
     rows = []
-    for path in sorted(folder.glob("*/synthetic/*/seed*/record.json")):
-        record = json.loads(path.read_text())
+    # job folders i<k> (seed<k> before instances), from the files or the configuration's records.tar.xz
+    found = [(config.name, record) for config in sorted(p for p in folder.iterdir() if p.is_dir())
+             for _, record in job_records(config, "synthetic/*/*/record.json")]
+    for config, record in found:
         if record.get("status") != "ok":
             continue
         params = record["config"]["problem"]["params"]
-        rows.append({"config": path.relative_to(folder).parts[0], "objective": params["objective"],
+        rows.append({"config": config, "objective": params["objective"],
                      "drives": len(params["drives"]), "rig": params["drives"][0], "noise_realisations": params.get("noise_realisations", 1),
                      "free": len(record["best_x"]), "seed": record["seed"],
                      "decisions": (params.get("filter") or {}).get("outlier_decisions", "own"),

@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.filter.batch import set_threads
+from bench.archive import job_records
 from bench.problems.synthetic import Synthetic
 from bench.problems.vio import _plain
 
@@ -39,7 +40,7 @@ DEFAULT_T = (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.1, 1.3)
 
 def records(folder: Path, seeds: list[int] | None) -> list[dict]:
     """The finished synthetic records of one study configuration folder (those of ``seeds``)."""
-    found = [json.loads(p.read_text()) for p in sorted(folder.glob("synthetic/*/seed*/record.json"))]
+    found = [r for _, r in job_records(folder, "synthetic/*/*/record.json")]  # files or records.tar.xz
     found = [r for r in found if r.get("status") == "ok" and (seeds is None or r["seed"] in seeds)]
     if not found:
         raise SystemExit(f"line_scan: {folder}: no finished synthetic record"

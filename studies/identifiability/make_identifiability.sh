@@ -75,9 +75,11 @@ for name in "$@"; do
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
   rm -rf "${out:?}/$name"
   start=$(date -u +%s)
-  python -m bench problem=synthetic optimizer=cmaes seed="range($seeds)" budget.evals="$budget" report=false \
+  # instance k: the camera and drives of data seed k, and CMA-ES's seed k (configurations made before
+  # instances existed swept seed=range(k) with data_seed=${seed}: the same runs, folders seed<k>)
+  python -m bench problem=synthetic optimizer=cmaes instance="range($seeds)" budget.evals="$budget" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
-    'problem.params.data_seed=${seed}' problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" "${timing[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
+    problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" "${timing[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done

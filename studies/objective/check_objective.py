@@ -158,13 +158,13 @@ def identifiability_summary() -> None:
 
 
 def real_track_rotations() -> None:
-    import json
 
+    from bench.archive import job_records
     from bench.problems.base import build_problem
 
     print("5. kitti00_tracks: best rotation's angle from the rectified KITTI extrinsic (median over seeds):")
     for name in ("kitti00_tracks", "kitti00_tracks_nll", "kitti00_tracks_rotation", "kitti00_tracks_nll_rotation"):
-        records = [json.loads(p.read_text()) for p in sorted((ROOT / "results" / name).glob("*/*/seed*/record.json"))]
+        records = [r for _, r in job_records(ROOT / "results" / name)]  # files or records.tar.xz
         records = [r for r in records if r.get("status") == "ok"]
         if not records:
             print(f"   results/{name}: no records")

@@ -68,3 +68,20 @@ def test_a_folder_with_both_records_and_an_archive_that_disagree_is_not_overwrit
         with records_restored([tmp_path / "s"]):
             pass
     assert (job / "evals.jsonl").read_text() == "mine\n"
+
+
+def test_job_records_read_the_same_from_files_and_from_the_archive(tmp_path):
+    from bench.archive import job_records
+
+    for k, optimizer in enumerate(("random", "cmaes")):
+        job = tmp_path / "s" / "sphere" / optimizer / f"i{k}"
+        job.mkdir(parents=True)
+        (job / "record.json").write_text(f'{{"optimizer": "{optimizer}", "instance": {k}}}')
+        (job / "evals.jsonl").write_text("{}\n")
+    files = job_records(tmp_path / "s")
+    assert [r["optimizer"] for _, r in files] == ["cmaes", "random"]
+    pack(tmp_path / "s", remove=True)
+    assert not (tmp_path / "s" / "sphere").exists()
+    assert job_records(tmp_path / "s") == files
+    assert job_records(tmp_path / "s", "sphere/random/*/record.json") == files[1:]
+    assert job_records(tmp_path / "nothing") == []
