@@ -35,12 +35,19 @@ class ArchiveError(BenchError):
     """A records archive that cannot be written or read back (names the file)."""
 
 
-def _members(sweep_dir: Path) -> list[Path]:
-    """Files under ``sweep_dir`` that go into the archive, sorted (relative paths)."""
+#: The evaluation logs: what a study that reads only its runs' best points may leave out (``logs=False``).
+LOG_NAME = "evals.jsonl"
+
+
+def _members(sweep_dir: Path, logs: bool = True) -> list[Path]:
+    """Files under ``sweep_dir`` that go into the archive, sorted (relative paths); without ``logs``,
+    the evaluation logs stay out."""
     files = []
     for path in sweep_dir.rglob("*"):
         rel = path.relative_to(sweep_dir)
         if rel.parts[0] in EXCLUDED_TOP or path.name in EXCLUDED_NAMES or path.is_dir():
+            continue
+        if not logs and path.name == LOG_NAME:
             continue
         if path.is_symlink():
             raise ArchiveError(f"{path} is a symbolic link; records are archived as files only")
@@ -48,11 +55,13 @@ def _members(sweep_dir: Path) -> list[Path]:
     return sorted(files, key=lambda p: p.as_posix())
 
 
-def pack(sweep_dir: str | Path, remove: bool = False) -> Path:
+def pack(sweep_dir: str | Path, remove: bool = False, logs: bool = True) -> Path:
     """Write ``sweep_dir/records.tar.xz`` (every file but ``report/``); with ``remove``, delete the
-    archived files afterwards (emptied folders too). Returns the archive's path."""
+    archived files afterwards (emptied folders too). Without ``logs`` the evaluation logs are left
+    out of the archive (and deleted with ``remove``): for a study whose summary reads only the runs'
+    records, not a sweep whose report is rebuilt from the archive. Returns the archive's path."""
     sweep_dir = Path(sweep_dir)
-    members = _members(sweep_dir)
+    members = _members(sweep_dir, logs)
     if not members:
         raise ArchiveError(f"{sweep_dir}: nothing to archive (no records)")
     buffer = io.BytesIO()
@@ -67,7 +76,8 @@ def pack(sweep_dir: str | Path, remove: bool = False) -> Path:
     archive = sweep_dir / ARCHIVE
     archive.write_bytes(lzma.compress(buffer.getvalue(), preset=9 | lzma.PRESET_EXTREME))
     if remove:
-        _remove(sweep_dir, members, locks=True)
+        left_out = sorted(set(_members(sweep_dir)) - set(members))
+        _remove(sweep_dir, members + left_out, locks=True)
     return archive
 
 

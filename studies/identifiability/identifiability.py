@@ -40,7 +40,7 @@ from avio.calibration import (
     ray_error_deg,
 )
 from avio.metrics import position_rmse_objective
-from bench.archive import job_records
+from bench.archive import has_records, job_records, pack
 from bench.problems.synthetic import Synthetic, SyntheticParams
 from bench.problems.vio import _plain
 from bench.report import stats
@@ -222,6 +222,9 @@ def main() -> None:
     parser.add_argument("folder", type=Path)
     parser.add_argument("--compare", nargs=2, metavar=("CONFIG_A", "CONFIG_B"),
                         help="compare two configurations of the folder's runs.csv seed by seed")
+    parser.add_argument("--pack", action="store_true",
+                        help="after the summary, pack each configuration's records into its records.tar.xz "
+                             "without the evaluation logs (the summary reads only the records)")
     args = parser.parse_args()
     folder = args.folder
     if args.compare:
@@ -243,6 +246,9 @@ def main() -> None:
     (folder / "summary.md").write_text(markdown(summary))
     figure(summary, folder / "summary.png")
     print(summary.to_string(index=False))
+    if args.pack:
+        for config in sorted(p for p in folder.iterdir() if p.is_dir() and has_records(p)):
+            pack(config, remove=True, logs=False)
 
 
 if __name__ == "__main__":

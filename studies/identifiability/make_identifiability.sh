@@ -83,4 +83,5 @@ for name in "$@"; do
     hydra.sweep.dir="$out/$name"
   echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done
-python studies/identifiability/identifiability.py "$out"
+# the summary, then each new configuration packed into its records.tar.xz without the evaluation logs
+python studies/identifiability/identifiability.py "$out" --pack

@@ -85,3 +85,17 @@ def test_job_records_read_the_same_from_files_and_from_the_archive(tmp_path):
     assert job_records(tmp_path / "s") == files
     assert job_records(tmp_path / "s", "sphere/random/*/record.json") == files[1:]
     assert job_records(tmp_path / "nothing") == []
+
+
+def test_a_study_may_leave_the_logs_out_of_its_archive(tmp_path):
+    from bench.archive import job_records
+
+    job = tmp_path / "c" / "synthetic" / "cmaes" / "i0"
+    job.mkdir(parents=True)
+    (job / "record.json").write_text('{"best_f": 1.0}')
+    (job / "evals.jsonl").write_text("{}\n")
+    pack(tmp_path / "c", remove=True, logs=False)
+    assert sorted(p.name for p in (tmp_path / "c").rglob("*") if p.is_file()) == [ARCHIVE]  # the log is gone too
+    assert [r for _, r in job_records(tmp_path / "c")] == [{"best_f": 1.0}]
+    with records_restored([tmp_path / "c"]):
+        assert (job / "record.json").is_file() and not (job / "evals.jsonl").exists()
