@@ -90,3 +90,20 @@ class TruthWarnings:
 
 
 __all__ = ["TruthWarnings", "check_design", "check_verdict", "truth_outside"]
+
+
+def seed_sweep_note(overrides: list[str], default_instances) -> str | None:
+    """A note when the command line sweeps ``seed`` and leaves ``instance`` to the config's default
+    sweep (``default_instances``, e.g. ``range(0,12)``): every seed then runs on every default
+    instance, which a user sweeping seeds rarely means (the unit of replication is the instance)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if not default_instances:
+        return None
+    parsed = OverridesParser.create().parse_overrides([o for o in overrides if not o.lstrip("+~").startswith("hydra")])
+    keys = {o.key_or_group: o for o in parsed}
+    if "instance" in keys or "seed" not in keys or not keys["seed"].is_sweep_override():
+        return None
+    return (f"note: seed is swept on each of the default instances (instance={default_instances}); the unit "
+            "of replication is the instance: instance='range(k)' pairs optimisers on k instances, with "
+            "seed=<k> fixed or left to follow the instance")

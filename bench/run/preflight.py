@@ -51,7 +51,7 @@ from bench.records import (
     refuse_symlink,
 )
 from bench.run.compose_cache import JobComposer, job_part
-from bench.run.design_checks import TruthWarnings, check_design, dotted_paths
+from bench.run.design_checks import TruthWarnings, check_design, dotted_paths, seed_sweep_note
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, instance_of, progress_every_s_of, seed_of
 from bench.run.log_checks import linked_file
@@ -87,6 +87,11 @@ def expand_jobs(argv: list[str]) -> list[list[str]]:
     sweep_params = [f"{k}={v}" for k, v in params.items()]
     parsed = parser.parse_overrides(sweep_params + app_overrides)
     return BasicSweeper.split_arguments(parsed, None)[0]
+
+
+def _default_instances() -> str | None:
+    """The config's default ``instance`` sweep (hydra.sweeper.params.instance), as written."""
+    return OmegaConf.select(OmegaConf.load(CONF_DIR / "config.yaml"), "hydra.sweeper.params.instance")
 
 
 def _nearest_key(key: str, paths: list[str]) -> str | None:
@@ -328,6 +333,9 @@ def plan(argv: list[str]) -> SweepPlan:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
             check_keys(argv)
             jobs = expand_jobs(argv)
+            note = seed_sweep_note([a for a in argv if not a.startswith("-")], _default_instances())
+            if note:
+                print(note, file=sys.stderr, flush=True)
             if len(jobs) > 4:
                 print(f"Checking {len(jobs)} jobs before any work ...", file=sys.stderr, flush=True)
             truths = TruthWarnings()

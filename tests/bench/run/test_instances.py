@@ -152,3 +152,13 @@ def test_the_truth_warning_names_each_variable_and_by_how_much():
                                 f"(0): fx 2.5 px above {space.upper[0]:g}, tz 0.125 m below {space.lower[9]:g}; no "
                                 "optimiser can reach it (widen problem.params.bounds)"]
     assert truth_outside(SimpleNamespace(space=space, truth=None)) == []
+
+
+def test_sweeping_seeds_on_the_default_instances_is_noted_before_the_sweep_starts():
+    from bench.run.design_checks import seed_sweep_note
+
+    note = seed_sweep_note(["optimizer=cmaes", "seed=range(5)"], "range(0,12)")
+    assert note and "instance=range(0,12)" in note and "instance='range(k)'" in note
+    assert seed_sweep_note(["instance=range(3)", "seed=range(5)"], "range(0,12)") is None  # both chosen
+    assert seed_sweep_note(["seed=7"], "range(0,12)") is None  # one seed: the optimiser's draw set apart
+    assert seed_sweep_note(["seed=1,2"], None) is None  # no default instance sweep
