@@ -67,6 +67,7 @@ def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000)
 def main(argv=None) -> None:
     sys.path.insert(0, str(ROOT / "studies" / "objective"))
     from information_equality import A7, VARS
+    from objective_bias import DRIVE
 
     from bench.problems.synthetic import Synthetic
 
@@ -75,23 +76,29 @@ def main(argv=None) -> None:
     parser.add_argument("--K", type=int, nargs="+", default=[1, 4, 16], help="calibration drives")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras whose errors are drawn")
     args = parser.parse_args(argv)
-    info = fisher_information(np.load(args.load)["innovation_nll_joint_H"])
+    saved = np.load(args.load)
+    info = fisher_information(saved["innovation_nll_joint_H"])
     rng = np.random.default_rng(0)
-    names = ("f",) + VARS[2:]
-    print(f"Fisher information of the joint likelihood per drive ({len(np.load(args.load)['innovation_nll_joint_H'])} "
-          "drives); flat city, 7 free (fy = fx, dy, dz frozen)")
+    # the file's rig (files saved before --rig: the flat city, 8 measured, 7 free)
+    rig = str(saved["rig"]) if "rig" in saved else DRIVE
+    measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else VARS
+    A = A7 if rig == DRIVE else np.eye(len(measured))
+    names = ("f",) + VARS[2:] if rig == DRIVE else measured
+    free = "7 free (fy = fx, dy, dz frozen)" if rig == DRIVE else f"all {len(measured)} free"
+    print(f"Fisher information of the joint likelihood per drive ({len(saved['innovation_nll_joint_H'])} "
+          f"drives); {rig}, {free}")
     print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")
     print("|---|" + "---|" * (len(names) + len(ERRORS)))
     for K in args.K:
-        cov = bound_covariance(info, K, A7)
+        cov = bound_covariance(info, K, A)
         per = {k: [] for k in ERRORS}
         for seed in args.seeds:
-            problem = Synthetic(drives=["paper_540m"], holdout=None, data_seed=seed, space="local")
-            cols = [problem.space.names.index(v) for v in VARS]
+            problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
+            cols = [problem.space.names.index(v) for v in measured]
 
             def decode(dy, problem=problem, cols=cols):
                 X = np.repeat(problem.truth[None], len(dy), axis=0)
-                X[:, cols] += dy @ A7.T
+                X[:, cols] += dy @ A.T
                 return problem.calibration_space.decode(X)
 
             for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng).items():

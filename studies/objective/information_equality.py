@@ -51,9 +51,12 @@ from avio.sim.simulator import SimConfig, simulate
 from bench.problems.synthetic import Synthetic
 
 VARS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx")
+#: the excited rig (``--rig full3d_540m``): every variable, all ten free (issue 33)
+VARS10 = (*VARS, "dy", "dz")
 #: central-difference steps (px, deg, m): with imposed decisions both likelihoods are smooth, so
 #: half minimiser_scatter.py's steps (chosen for the roughness of the filters' own decisions)
-STEP = {"fx": 1.5, "fy": 1.5, "cx": 1.5, "cy": 1.5, "rx": 0.15, "ry": 0.15, "rz": 0.15, "dx": 0.015}
+STEP = {"fx": 1.5, "fy": 1.5, "cx": 1.5, "cy": 1.5, "rx": 0.15, "ry": 0.15, "rz": 0.15, "dx": 0.015, "dy": 0.015,
+        "dz": 0.015}
 OBJECTIVES = ("innovation_nll", "innovation_nll_joint")
 #: the 7 free variables of the flat-city rows: f = fx = fy, then cx, cy, rx, ry, rz, dx
 A7 = np.zeros((8, 7))
@@ -75,22 +78,28 @@ def drive_totals(problem: Synthetic, batch, drive) -> dict[str, np.ndarray] | No
     return {k: v * slots for k, v in per.items()}
 
 
-def measure(seeds, n_drives: int, sim: dict | None = None) -> dict:
-    """Per objective (D, 8) gradients and (D, 8, 8) Hessians at the truth, per unit of VARS
-    (sim: SimConfig overrides of the fresh drives)."""
+def rig_vars(rig: str) -> tuple[str, ...]:
+    """The variables measured on a rig's drives: the flat city's 8 (dy, dz undetermined there), or all 10."""
+    return VARS if rig == DRIVE else VARS10
+
+
+def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE) -> dict:
+    """Per objective (D, p) gradients and (D, p, p) Hessians at the truth, per unit of
+    ``rig_vars(rig)`` (sim: SimConfig overrides of the fresh drives; rig: their preset)."""
     out = {k: {"g": [], "H": []} for k in OBJECTIVES}
     skipped = 0
-    h = np.array([STEP[v] for v in VARS])
+    names = rig_vars(rig)
+    h = np.array([STEP[v] for v in names])
     for seed in seeds:
-        problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local",
+        problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
                             filter={"outlier_decisions": "reference_all"})
-        cols = [problem.space.names.index(v) for v in VARS]
-        X = np.repeat(problem.truth[None], len(design(8, h)), axis=0)
-        X[:, cols] += design(8, h)
+        cols = [problem.space.names.index(v) for v in names]
+        X = np.repeat(problem.truth[None], len(design(len(names), h)), axis=0)
+        X[:, cols] += design(len(names), h)
         batch = problem.calibration_space.decode(X)
         camera = problem.sequence.truth_calibration
         for i in range(n_drives):
-            drive = simulate(getattr(SimConfig, DRIVE)(**(sim or {})), (seed, FRESH_SEED0 + i), true_calibration=camera)
+            drive = simulate(getattr(SimConfig, rig)(**(sim or {})), (seed, FRESH_SEED0 + i), true_calibration=camera)
             totals = drive_totals(problem, batch, drive)
             if totals is None:
                 skipped += 1
@@ -134,17 +143,20 @@ def typical(H: np.ndarray, k: float = 5.0) -> np.ndarray:
     return np.all(np.abs(diag - med) <= k * mad, axis=1)
 
 
-def report(data: dict, rng) -> list[str]:
-    """The table's lines: per objective the 7-free equality over all drives and over the typical
-    ones (:func:`typical`), with the per-variable ratios G_ii / H_ii there, and the 8 mean-gradient
-    t-statistics (all drives)."""
-    names = ("f",) + VARS[2:]
-    lines = ["| objective | drives | tr(H⁻¹G)/7 [95 % bootstrap] | largest eigenvalue | typical drives: tr(H⁻¹G)/7 [95 %] | "
-             "G_ii/H_ii there (" + ", ".join(names) + ") | " + " | ".join(f"t({v})" for v in VARS) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(VARS)]
+def report(data: dict, rng, rig: str = DRIVE) -> list[str]:
+    """The table's lines: per objective the equality in the rig's free variables (flat city: the 7
+    of its rows; full3d: all 10) over all drives and over the typical ones (:func:`typical`), with
+    the per-variable ratios G_ii / H_ii there, and the mean-gradient t-statistics (all drives)."""
+    measured = rig_vars(rig)
+    A = A7 if rig == DRIVE else np.eye(len(measured))
+    names = ("f",) + VARS[2:] if rig == DRIVE else measured
+    p = A.shape[1]
+    lines = [f"| objective | drives | tr(H⁻¹G)/{p} [95 % bootstrap] | largest eigenvalue | typical drives: tr(H⁻¹G)/{p} "
+             "[95 %] | G_ii/H_ii there (" + ", ".join(names) + ") | " + " | ".join(f"t({v})" for v in measured) + " |",
+             "|---|---|---|---|---|---|" + "---|" * len(measured)]
     for k in OBJECTIVES:
         g, H = data[k]["g"], data[k]["H"]
-        g7, H7 = g @ A7, np.einsum("ia,dij,jb->dab", A7, H, A7)
+        g7, H7 = g @ A, np.einsum("ia,dij,jb->dab", A, H, A)
         ratio, top = equality(g7, H7)
         lo, hi = bootstrap(g7, H7, rng)
         keep = typical(H7)
@@ -164,6 +176,8 @@ def main(argv=None) -> None:
     parser.add_argument("--drives", type=int, default=10, help="fresh drives per camera")
     parser.add_argument("--sim", type=json.loads, default=None,
                         help='SimConfig overrides of the fresh drives as JSON, e.g. \'{"pixel_noise_per_triplet": true}\'')
+    parser.add_argument("--rig", default=DRIVE, choices=[DRIVE, "full3d_540m"],
+                        help="the drives' preset: the flat city (8 variables measured, 7 free) or the excited rig (all 10)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
@@ -174,13 +188,15 @@ def main(argv=None) -> None:
         saved = np.load(args.load)
         data = {k: {"g": saved[f"{k}_g"], "H": saved[f"{k}_H"]} for k in OBJECTIVES}
         data["skipped"] = int(saved["skipped"])
+        args.rig = str(saved["rig"]) if "rig" in saved else DRIVE  # files saved before --rig: the flat city
     else:
-        data = measure(args.seeds, args.drives, args.sim)
+        data = measure(args.seeds, args.drives, args.sim, args.rig)
     if args.save:
-        np.savez(args.save, skipped=data["skipped"], **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
-    print(f"sim {args.sim or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
+        np.savez(args.save, skipped=data["skipped"], rig=args.rig, vars=np.array(rig_vars(args.rig)),
+                 **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
+    print(f"{args.rig}, sim {args.sim or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
           f"imposed decisions (reference_all), {time.process_time() - start:.0f} s CPU")
-    print("\n".join(report(data, np.random.default_rng(0))))
+    print("\n".join(report(data, np.random.default_rng(0), args.rig)))
 
 
 if __name__ == "__main__":
