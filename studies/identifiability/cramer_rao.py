@@ -43,6 +43,15 @@ def fisher_information(hessians: np.ndarray) -> np.ndarray:
     return 0.5 * (H + H.T)
 
 
+def outer_product_information(gradients: np.ndarray) -> np.ndarray:
+    """(p, p) Fisher information of one drive estimated by the outer product of the per-drive score
+    vectors (D, p) at the truth (the BHHH estimate; equal to the mean Hessian's where the
+    information-matrix equality holds, and positive semi-definite where the mean Hessian of few
+    drives is not)."""
+    g = np.asarray(gradients, float)
+    return g.T @ g / len(g)
+
+
 def bound_covariance(information: np.ndarray, K: int, A: np.ndarray | None = None) -> np.ndarray:
     """(r, r) Cramér–Rao covariance bound ``(K A^T I A)^-1`` of the free variables after K drives
     (A (p, r): free variables into the measured ones; None: all free). Raises LinAlgError when a
@@ -75,9 +84,12 @@ def main(argv=None) -> None:
     parser.add_argument("--load", type=Path, required=True, help="studies/objective/information_equality.py --save file")
     parser.add_argument("--K", type=int, nargs="+", default=[1, 4, 16], help="calibration drives")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras whose errors are drawn")
+    parser.add_argument("--information", choices=["hessian", "opg"], default="hessian",
+                        help="the mean Hessian at the truth (default), or the scores' outer product (BHHH)")
     args = parser.parse_args(argv)
     saved = np.load(args.load)
-    info = fisher_information(saved["innovation_nll_joint_H"])
+    info = (fisher_information(saved["innovation_nll_joint_H"]) if args.information == "hessian"
+            else outer_product_information(saved["innovation_nll_joint_g"]))
     rng = np.random.default_rng(0)
     # the file's rig (files saved before --rig: the flat city, 8 measured, 7 free)
     rig = str(saved["rig"]) if "rig" in saved else DRIVE
@@ -86,7 +98,8 @@ def main(argv=None) -> None:
     names = ("f",) + VARS[2:] if rig == DRIVE else measured
     free = "7 free (fy = fx, dy, dz frozen)" if rig == DRIVE else f"all {len(measured)} free"
     print(f"Fisher information of the joint likelihood per drive ({len(saved['innovation_nll_joint_H'])} "
-          f"drives); {rig}, {free}")
+          f"drives, {'mean Hessian' if args.information == 'hessian' else 'outer product of the scores'}); "
+          f"{rig}, {free}")
     print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")
     print("|---|" + "---|" * (len(names) + len(ERRORS)))
     for K in args.K:

@@ -22,16 +22,21 @@ def test_the_bound_of_a_linear_gaussian_model_is_its_known_one_and_least_squares
     B, x_true, sigma = _toy(rng)
     h = np.array([0.1, 0.2, 0.05])
     offsets = design.design(3, h)
-    hessians, estimates = [], []
+    hessians, scores, estimates = [], [], []
     for _ in range(300):  # "drives": fresh noise draws, the NLL's Hessian by the study's finite differences
         y = B @ x_true + sigma * rng.standard_normal(len(B))
         nll = np.array([0.5 * np.sum((y - B @ (x_true + d)) ** 2) / sigma**2 for d in offsets])
-        hessians.append(design.derivatives(nll, h)[1])
+        g, H = design.derivatives(nll, h)
+        hessians.append(H)
+        scores.append(g)
         estimates.append(np.linalg.lstsq(B, y, rcond=None)[0])
     known = sigma**2 * np.linalg.inv(B.T @ B)
     info = module.fisher_information(np.array(hessians))
     np.testing.assert_allclose(module.bound_covariance(info, 1), known, rtol=1e-6)
     np.testing.assert_allclose(module.bound_covariance(info, 4), known / 4, rtol=1e-6)
+    # a correct model: the scores' outer product estimates the same information (within sampling)
+    opg = module.outer_product_information(np.array(scores))
+    np.testing.assert_allclose(np.sqrt(np.diag(module.bound_covariance(opg, 1))), np.sqrt(np.diag(known)), rtol=0.12)
     scatter = np.cov(np.array(estimates).T)  # the efficient estimator's covariance: the bound, within sampling
     np.testing.assert_allclose(np.sqrt(np.diag(scatter)), np.sqrt(np.diag(known)), rtol=0.12)
 
