@@ -10,6 +10,7 @@ minus the mean evaluation seconds of a job, as issue 34 defines it) and the file
 """
 
 import argparse
+import contextlib
 import importlib.util
 import json
 import os
@@ -31,6 +32,18 @@ def cluster_class():
     return module.Cluster
 
 
+@contextlib.contextmanager
+def running_cluster(tmp: Path):
+    """The single-node cluster of tests/bench/cluster/conftest.py, started under ``tmp/cluster``, stopped after."""
+    (tmp / "cluster").mkdir()
+    cluster = cluster_class()(tmp / "cluster")
+    cluster.start(socket.gethostname().split(".")[0])
+    try:
+        yield cluster
+    finally:
+        cluster.stop()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=1000)
@@ -42,10 +55,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench-slurm-sweep-") as tmp:
         tmp = Path(tmp)
-        (tmp / "cluster").mkdir()
-        cluster = cluster_class()(tmp / "cluster")
-        cluster.start(socket.gethostname().split(".")[0])
-        try:
+        with running_cluster(tmp) as cluster:
             sweep = tmp / "s"
             argv = ["problem=sphere", "optimizer=random", f"instance=range({args.jobs})", f"budget.evals={args.evals}",
                     "report=false", "progress=false", f"hydra.sweep.dir={sweep}"]
@@ -72,8 +82,6 @@ def main() -> None:
             last = max(p.stat().st_mtime for p in sweep.rglob("record.json"))
             wall = last - (time.time() - (time.perf_counter() - t0))
             files = sum(len(f) for _, _, f in os.walk(sweep))
-        finally:
-            cluster.stop()
     n = len(records)
     eval_s = sum(r["eval_s"] for r in records) / max(n, 1)
     print(f"jobs {args.jobs} (pack {args.pack}, {args.evals} evals): {n} records, "

@@ -13,9 +13,7 @@ wall-time columns.
 """
 
 import argparse
-import importlib.util
 import json
-import socket
 import subprocess
 import sys
 import tempfile
@@ -26,17 +24,13 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_slurm_sweep import running_cluster  # the same test cluster, started the same way
 
 #: what a record holds that does not depend on when or where it ran
 RECORD_KEYS = ("status", "best_f", "best_x", "best_metrics", "n_evals", "n_batches", "stop_reason", "job_key",
                "config_hash")
-
-
-def cluster_class():
-    spec = importlib.util.spec_from_file_location("bench_cluster", ROOT / "tests" / "bench" / "cluster" / "conftest.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.Cluster
 
 
 def records(sweep: Path) -> dict[str, dict]:
@@ -79,10 +73,7 @@ def main() -> None:
     n_jobs = args.instances * len(args.optimizers.split(","))
     with tempfile.TemporaryDirectory(prefix="bench-slurm-vio-") as tmp:
         tmp = Path(tmp)
-        (tmp / "cluster").mkdir()
-        cluster = cluster_class()(tmp / "cluster")
-        cluster.start(socket.gethostname().split(".")[0])
-        try:
+        with running_cluster(tmp) as cluster:
             env = {**cluster.env, "PYTHONPATH": str(ROOT)}
             serial_s = run([*argv, f"hydra.sweep.dir={tmp / 'serial'}"], env, tmp)
             t0 = time.perf_counter()
@@ -94,8 +85,6 @@ def main() -> None:
             serial, slurm = records(tmp / "serial"), records(tmp / "slurm")
             same_logs = logs(tmp / "serial") == logs(tmp / "slurm")
             boards = leaderboard(tmp / "serial", env), leaderboard(tmp / "slurm", env)
-        finally:
-            cluster.stop()
     print(f"{n_jobs} jobs (synthetic, {args.duration:g} s drives, {args.optimizers} x {args.instances} instances, "
           f"{args.evals} evaluations): serial {serial_s:.0f} s, SLURM (pack {args.pack}) {slurm_s:.0f} s wall")
     print(f"records: {len(serial)} serial, {len(slurm)} on SLURM, {sum(r['status'] == 'ok' for r in slurm.values())} ok; "
