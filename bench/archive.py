@@ -17,7 +17,9 @@ byte-identical rebuild needs.
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import io
+import json
 import lzma
 import tarfile
 from collections.abc import Iterator
@@ -138,9 +140,6 @@ def job_records(sweep_dir: str | Path, pattern: str = "*/*/*/record.json") -> li
     ``(relative path, record)`` sorted by path, read from the files, or from ``records.tar.xz`` when
     the folder holds only the archive (read in memory, nothing written). For the studies' scripts,
     which read best points, not the logs."""
-    import fnmatch
-    import json
-
     sweep_dir = Path(sweep_dir)
     if has_records(sweep_dir):
         return [(p.relative_to(sweep_dir), json.loads(p.read_text())) for p in sorted(sweep_dir.glob(pattern))]

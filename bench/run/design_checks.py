@@ -89,9 +89,6 @@ class TruthWarnings:
         return out
 
 
-__all__ = ["TruthWarnings", "check_design", "check_verdict", "truth_outside"]
-
-
 def seed_sweep_note(overrides: list[str], default_instances) -> str | None:
     """A note when the command line sweeps ``seed`` and leaves ``instance`` to the config's default
     sweep (``default_instances``, e.g. ``range(0,12)``): every seed then runs on every default
@@ -107,3 +104,6 @@ def seed_sweep_note(overrides: list[str], default_instances) -> str | None:
     return (f"note: seed is swept on each of the default instances (instance={default_instances}); the unit "
             "of replication is the instance: instance='range(k)' pairs optimisers on k instances, with "
             "seed=<k> fixed or left to follow the instance")
+
+
+__all__ = ["TruthWarnings", "check_design", "check_verdict", "seed_sweep_note", "truth_outside"]
