@@ -209,12 +209,17 @@ def test_fixed_and_tied_variables_leave_the_space_and_follow_the_reference(probl
     assert np.isfinite(f[0])
 
 
-def test_innovation_nll_prefers_the_truth_and_a_batch_equals_single_runs():
-    nll = Synthetic(holdout=None, objective="innovation_nll", **SHORT)
-    wrong = nll.truth.copy()
+def _truth_wrong_reference(problem) -> np.ndarray:
+    """(3, d): the truth, the truth with roll 1 deg and cx 8 px off, and the reference."""
+    wrong = problem.truth.copy()
     wrong[4] += 1.0  # roll 1 deg off
     wrong[2] += 8.0  # cx 8 px off
-    X = np.stack([nll.truth, wrong, nll.space.reference])
+    return np.stack([problem.truth, wrong, problem.space.reference])
+
+
+def test_innovation_nll_prefers_the_truth_and_a_batch_equals_single_runs():
+    nll = Synthetic(holdout=None, objective="innovation_nll", **SHORT)
+    X = _truth_wrong_reference(nll)
     f, metrics = nll.evaluate(X)
     assert f[0] < f[1] and np.all(np.isfinite(f))
     alone = np.array([nll.evaluate(X[i:i + 1])[0][0] for i in range(3)])
@@ -227,10 +232,7 @@ def test_the_joint_likelihood_prefers_the_truth_a_batch_equals_single_runs_and_n
     imposed = {"outlier_decisions": "reference_all"}
     joint = Synthetic(holdout=None, objective="innovation_nll_joint", filter=imposed, **SHORT)
     composite = Synthetic(holdout=None, objective="innovation_nll", filter=imposed, **SHORT)
-    wrong = joint.truth.copy()
-    wrong[4] += 1.0  # roll 1 deg off
-    wrong[2] += 8.0  # cx 8 px off
-    X = np.stack([joint.truth, wrong, joint.space.reference])
+    X = _truth_wrong_reference(joint)
     f, metrics = joint.evaluate(X)
     assert f[0] < f[1] and np.all(np.isfinite(f))
     np.testing.assert_array_equal(metrics["innovation_nll_joint"], f)

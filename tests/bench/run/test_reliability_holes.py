@@ -54,12 +54,18 @@ def test_every_log_line_carries_the_jobs_key(tmp_path):
     assert {e["job_key"] for e in read_eval_log(tmp_path / "job")} == {record["job_key"]}
 
 
-def test_a_log_copied_from_another_job_is_not_resumed_into_a_wrong_record(tmp_path):
-    # before: job B, resumed from job A's log (same asks, other data), finished "ok" with A's values
+def _job_with_a_copied_log(tmp_path: Path) -> Path:
+    """Job B, finished, whose evaluation log was then replaced by job A's (same asks, other data)."""
     _run(tmp_path / "a", problem=_OtherDrive("sphere"))
     b = tmp_path / "b"
     _run(b)
     shutil.copy(tmp_path / "a" / EVAL_LOG, b / EVAL_LOG)
+    return b
+
+
+def test_a_log_copied_from_another_job_is_not_resumed_into_a_wrong_record(tmp_path):
+    # before: job B, resumed from job A's log (same asks, other data), finished "ok" with A's values
+    b = _job_with_a_copied_log(tmp_path)
     (b / RECORD).unlink()
     before = _snapshot(b)
     with pytest.raises(RunError) as refused:
@@ -70,10 +76,7 @@ def test_a_log_copied_from_another_job_is_not_resumed_into_a_wrong_record(tmp_pa
 
 
 def test_a_finished_record_beside_another_jobs_log_is_not_skipped(tmp_path):
-    _run(tmp_path / "a", problem=_OtherDrive("sphere"))
-    b = tmp_path / "b"
-    _run(b)
-    shutil.copy(tmp_path / "a" / EVAL_LOG, b / EVAL_LOG)
+    b = _job_with_a_copied_log(tmp_path)
     before = _snapshot(b)
     with pytest.raises(RunError, match="copied from another job folder"):
         _run(b)
@@ -89,10 +92,7 @@ def _strip_keys(log: Path) -> None:
 def test_a_keyless_log_copied_from_another_job_is_refused_on_resume_and_on_skip(tmp_path, finished):
     # before: an older harness's keyless log was trusted on job.json alone, so job A's log, copied into
     # job B's folder, replayed (or was skipped) into B's record with A's values
-    _run(tmp_path / "a", problem=_OtherDrive("sphere"))
-    b = tmp_path / "b"
-    _run(b)
-    shutil.copy(tmp_path / "a" / EVAL_LOG, b / EVAL_LOG)
+    b = _job_with_a_copied_log(tmp_path)
     _strip_keys(b / EVAL_LOG)
     if not finished:
         (b / RECORD).unlink()
