@@ -16,8 +16,14 @@ Objectives (``objective=``), all batched and pooled over the calibration drives:
   its innovations per residual (avio.objectives.innovation_nll), dimensionless: a sum of
   per-feature marginal likelihoods.
 - ``innovation_nll_joint``: the joint likelihood of each update's stacked innovations with
-  their full covariance (avio.objectives.innovation_nll_joint), per residual; meant with
-  ``filter: {outlier_decisions: reference_all}``.
+  their full covariance (avio.objectives.innovation_nll_joint), per residual.
+
+Both likelihoods default to imposed decisions, ``filter: {outlier_decisions: reference_all}``
+(:data:`LIKELIHOOD_FILTER_DEFAULTS`; ``filter: {outlier_decisions: own}`` restores the filters' own):
+the same features for every calibration, so the objective is smooth and comparable across a batch.
+The evidence (studies/identifiability/README.md): 4 drives, 7 free, seeds 0-19, innovation_nll's
+median rotation error 0.27 deg with reference_all against 0.50 deg with its own decisions (paired
+Wilcoxon p = 0.009), principal point 2.4 against 4.6 px (p = 0.009). ``position_rmse`` keeps the filters' own decisions (the paper's filter).
 
 A filter that diverges gets ``divergence_penalty_m * (2 - k_div / N)`` (in the objective's
 units): finite, worse than any regular value, worse the earlier it diverged.
@@ -55,6 +61,10 @@ from bench.problems._data_dir import DATA_HINT, checked_data, default_data_dir, 
 from bench.problems.base import ProblemError
 from bench.problems.calibration_space import make_calibration_space
 from bench.space import SpaceError
+
+
+#: FilterConfig settings a likelihood objective uses unless the user's ``filter`` sets them (module docstring)
+LIKELIHOOD_FILTER_DEFAULTS = {"outlier_decisions": "reference_all"}
 
 
 def _tuples(d: dict | None) -> dict:
@@ -187,8 +197,10 @@ class VioParams:
         self.space_for(self.nominal_for_checks(), self.image_size_for_checks())
 
     def filter_settings(self) -> dict:
-        """The filter's settings: the source's defaults, then the user's overrides."""
-        return {**self.filter_defaults, **(self.filter or {})}
+        """The filter's settings: the source's defaults, a likelihood's (imposed decisions), then the
+        user's overrides."""
+        likelihood = LIKELIHOOD_FILTER_DEFAULTS if self.objective != "position_rmse" else {}
+        return {**self.filter_defaults, **likelihood, **(self.filter or {})}
 
     # --- what a source provides ----------------------------------------------------------
 
@@ -297,7 +309,7 @@ class VioProblem:
                            for s in self.drives],
                 "holdout": None if self.holdout is None else self.holdout.name,
                 "holdout_content_hash": None if self.holdout is None else self.holdout.meta.get("content_hash"),
-                "objective": self.objective}
+                "objective": self.objective, "outlier_decisions": self.filter_config.outlier_decisions}
 
     def _owns(self, sequence: Sequence) -> bool:
         return sequence is self.holdout or any(sequence is s for s in self.drives)

@@ -48,6 +48,13 @@ from bench.report import stats
 ERRORS = ("rotation_error_deg", "focal_error_px", "principal_point_error_px", "translation_error_cm")
 
 
+def decisions(record: dict) -> str:
+    """The outlier decisions a run used: its record says (since the likelihood default changed); older records ran with the
+    filter's own unless the configuration set them."""
+    said = (record.get("problem_identity") or {}).get("outlier_decisions")
+    return said or (record["config"]["problem"]["params"].get("filter") or {}).get("outlier_decisions", "own")
+
+
 def load(folder: Path) -> pd.DataFrame:
     rows = []
     # job folders i<k> (seed<k> before instances), from the files or the configuration's records.tar.xz
@@ -60,7 +67,7 @@ def load(folder: Path) -> pd.DataFrame:
         rows.append({"config": config, "objective": params["objective"],
                      "drives": len(params["drives"]), "rig": params["drives"][0], "noise_realisations": params.get("noise_realisations", 1),
                      "free": len(record["best_x"]), "seed": record["seed"],
-                     "decisions": (params.get("filter") or {}).get("outlier_decisions", "own"),
+                     "decisions": decisions(record),
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
                      "evals": record["n_evals"], "best_f": record["best_f"], "f_truth": record["f_truth"],
                      **{k: record["best_metrics"][k] for k in ERRORS}})

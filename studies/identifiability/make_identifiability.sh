@@ -60,7 +60,9 @@ for name in "$@"; do
   seeds=5 budget=$evals base=$name
   if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
-  decisions=(); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
+  # a likelihood's default decisions are reference_all (bench/problems/vio.py): a configuration without a
+  # decisions suffix means the filters' own, so it says so
+  decisions=('problem.params.filter={outlier_decisions: own}'); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
   [[ $base == *_refall ]] && { decisions=('problem.params.filter={outlier_decisions: reference_all}'); base=${base%_refall}; }
   preset=paper_540m; timing=()
   [[ $base == *_td ]] && { timing=(problem.params.with_time_offset=true); base=${base%_td}; }

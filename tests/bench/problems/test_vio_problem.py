@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from bench.problems.base import ProblemError
-from bench.problems.synthetic import Synthetic
+from bench.problems.synthetic import Synthetic, SyntheticParams
+from bench.problems.vio import filter_config
 from bench.report.paper.tables import build_tables
 from bench.run.loop import Budget, run_job
 from optimizers.random_search import RandomSearch
@@ -243,6 +244,23 @@ def test_the_joint_likelihood_prefers_the_truth_a_batch_equals_single_runs_and_n
     for key in metrics:
         np.testing.assert_array_equal(metrics[key], other[key], err_msg=key)
     assert not np.allclose(f_c, f)  # a different objective: per-feature marginals against the joint
+
+
+@pytest.mark.parametrize("objective, given, used", [
+    ("position_rmse", None, "own"),                      # the paper's filter decides for itself
+    ("innovation_nll", None, "reference_all"),           # a likelihood imposes the reference's decisions
+    ("innovation_nll_joint", None, "reference_all"),
+    ("innovation_nll", {"outlier_decisions": "own"}, "own"),  # unless the user's filter says otherwise
+    ("position_rmse", {"outlier_decisions": "reference"}, "reference"),
+])
+def test_a_likelihood_imposes_the_reference_decisions_unless_told_otherwise(objective, given, used):
+    params = SyntheticParams.from_config({"objective": objective, "filter": given})
+    assert filter_config(params.filter_settings()).outlier_decisions == used
+
+
+def test_the_record_names_the_decisions_the_filter_used():
+    nll = Synthetic(holdout=None, objective="innovation_nll", **SHORT)
+    assert nll.identity["outlier_decisions"] == nll.filter_config.outlier_decisions == "reference_all"
 
 
 @pytest.mark.slow
