@@ -5,7 +5,10 @@ A job folder holds
   ``{"batch": i, "n": n, "evals_total": k, "t_start_s": .., "t_end_s": .., "eval_s": ..,
   "X": [[..]], "f": [..], "metrics": {name: [..]}}`` (times in seconds since the job started;
   ``eval_s`` is the time spent inside ``Problem.evaluate``). Python's JSON writes floats with
-  ``repr`` so they read back bit-for-bit.
+  ``repr`` so they read back bit-for-bit. With ``log_metrics: improvements`` (the default) a batch
+  keeps its metrics only at the points that improved the job's best so far (and the job's first
+  point), listed in ``"metrics_at": [i, ..]`` when they are not all of it; the readers below give
+  every batch's metrics at full length, NaN where none were kept (:func:`dense_metrics`).
 - ``record.json``: the final record, written atomically (temp file + rename), with
   ``status`` "ok" or "failed"; see ``bench.run`` for its fields.
 - ``job.json``: the job's identity, written before the first batch is logged: the hash of the
@@ -184,8 +187,29 @@ def scan_eval_log(job_dir: Path) -> tuple[list[dict], int, int]:
             raise RecordError(f"{path}:{number}: not a JSON line ({getattr(err, 'msg', err)})") from None
         if not isinstance(entry, dict) or not {"X", "f", "t_end_s"} <= set(entry):
             raise RecordError(f"{path}:{number}: not a batch entry (needs X, f, t_end_s)")
+        if "metrics_at" in entry:
+            try:
+                entry["metrics"] = dense_metrics(entry)
+            except (TypeError, ValueError, IndexError) as err:
+                raise RecordError(f"{path}:{number}: metrics_at does not fit the batch ({err})") from None
+            del entry["metrics_at"]
         entries.append(entry)
     return entries, end, len(data)
+
+
+def dense_metrics(entry: dict) -> dict[str, np.ndarray]:
+    """A batch entry's metrics at full length (n,) floats: those kept at ``metrics_at`` (when the line
+    lists them) placed at their points, NaN at the others."""
+    metrics = entry.get("metrics") or {}
+    at = entry.get("metrics_at")
+    if at is None:
+        return {k: np.asarray(v, float).reshape(-1) for k, v in metrics.items()}
+    out = {}
+    for key, values in metrics.items():
+        full = np.full(len(entry["f"]), np.nan)
+        full[np.asarray(at, int)] = np.asarray(values, float)
+        out[key] = full
+    return out
 
 
 def read_eval_log(job_dir: Path) -> list[dict]:

@@ -23,7 +23,8 @@ Both likelihoods default to imposed decisions, ``filter: {outlier_decisions: ref
 the same features for every calibration, so the objective is smooth and comparable across a batch.
 The evidence (studies/identifiability/README.md): 4 drives, 7 free, seeds 0-19, innovation_nll's
 median rotation error 0.27 deg with reference_all against 0.50 deg with its own decisions (paired
-Wilcoxon p = 0.009), principal point 2.4 against 4.6 px (p = 0.009). ``position_rmse`` keeps the filters' own decisions (the paper's filter).
+Wilcoxon p = 0.009), principal point 2.4 against 4.6 px (p = 0.009). ``position_rmse`` keeps the
+filters' own decisions (the paper's filter).
 
 A filter that diverges gets ``divergence_penalty_m * (2 - k_div / N)`` (in the objective's
 units): finite, worse than any regular value, worse the earlier it diverged.
@@ -61,7 +62,6 @@ from bench.problems._data_dir import DATA_HINT, checked_data, default_data_dir, 
 from bench.problems.base import ProblemError
 from bench.problems.calibration_space import make_calibration_space
 from bench.space import SpaceError
-
 
 #: FilterConfig settings a likelihood objective uses unless the user's ``filter`` sets them (module docstring)
 LIKELIHOOD_FILTER_DEFAULTS = {"outlier_decisions": "reference_all"}

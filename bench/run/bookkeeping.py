@@ -10,12 +10,36 @@ import numpy as np
 
 from bench.problems.base import Problem
 from bench.provenance import provenance
+from bench.records import dense_metrics
 from bench.run.identity import SCHEMA
 
+#: which evaluations' metrics a log keeps (the top-level ``log_metrics`` setting)
+LOG_METRICS = ("improvements", "all")
 
-def batch_entry(state: dict, X, f, metrics: dict, t_start: float, t_end: float) -> dict:
-    """A batch's line of the evaluation log: its points, values, metrics, times and counts."""
-    return {
+
+def improving_points(f, best_before: float, first: bool) -> np.ndarray:
+    """Indices (ascending, ints) of a batch's points that can ever be an incumbent: each point whose f
+    (n,) is below ``best_before`` (the job's best so far) and every earlier f of the batch (strictly:
+    ties keep the earlier point; NaN never improves), and the job's first point when ``first`` (the
+    incumbent before anything improved: bench.report.curves.incumbent_index)."""
+    f = np.asarray(f, float)
+    before = np.fmin.accumulate(np.concatenate([[best_before], f]))[:-1]
+    improved = f < before
+    if first and len(f):
+        improved[0] = True
+    return np.flatnonzero(improved)
+
+
+def batch_entry(state: dict, X, f, metrics: dict, t_start: float, t_end: float,
+                log_metrics: str = "improvements") -> dict:
+    """A batch's line of the evaluation log: its points, values, metrics, times and counts.
+
+    With ``log_metrics="improvements"`` the metrics are kept only at :func:`improving_points`,
+    listed in ``metrics_at`` when that is not every point (bench.records: a reader sees NaN at the
+    others). The report reads metrics at incumbents only, and an evaluation's 14 metrics cost as
+    much log as its 10 variables and f (results/README.md, "Size")."""
+    f = np.asarray(f, float)
+    entry = {
         "batch": state["n_batches"],
         "n": len(X),
         "evals_total": state["n_evals"] + len(X),
@@ -23,13 +47,20 @@ def batch_entry(state: dict, X, f, metrics: dict, t_start: float, t_end: float) 
         "t_end_s": t_end,
         "eval_s": t_end - t_start,
         "X": np.asarray(X, float),
-        "f": np.asarray(f, float),
+        "f": f,
         "metrics": {k: np.asarray(v, float).reshape(len(X)) for k, v in metrics.items()},
     }
+    if log_metrics == "improvements":
+        at = improving_points(f, state["best_f"], state["n_evals"] == 0)
+        if len(at) < len(f):
+            entry["metrics_at"] = at.tolist()
+            entry["metrics"] = {k: v[at] for k, v in entry["metrics"].items()} if len(at) else {}
+    return entry
 
 
 def account(state: dict, entry: dict) -> None:
-    """Update counters and the best point from one logged batch."""
+    """Update counters and the best point from one batch (as logged: its metrics may be kept at its
+    improving points only, which include the best one)."""
     f = np.asarray(entry["f"], float)
     state["n_evals"] += len(f)
     state["n_batches"] += 1
@@ -40,7 +71,7 @@ def account(state: dict, entry: dict) -> None:
     if finite[i] < state["best_f"]:
         state["best_f"] = float(finite[i])
         state["best_x"] = np.asarray(entry["X"], float)[i]
-        state["best_metrics"] = {k: float(np.asarray(v, float)[i]) for k, v in entry["metrics"].items()}
+        state["best_metrics"] = {k: float(v[i]) for k, v in dense_metrics(entry).items()}
 
 
 def _name(value):

@@ -22,6 +22,7 @@ import optimizers
 from bench.errors import BenchError
 from bench.problems.base import build_problem
 from bench.run import hydra_guard
+from bench.run.bookkeeping import LOG_METRICS
 from bench.run.identity import job_key
 from bench.run.loop import Budget, JobFolderError, RunError, record_failure, run_job
 
@@ -29,7 +30,7 @@ log = logging.getLogger(__name__)
 hydra_guard.install()  # here too for a launcher's worker, which imports this module to unpickle its job
 
 # settings that change how a job is shown, not what it computes: left out of its identity
-PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict")
+PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict", "log_metrics")
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
@@ -99,6 +100,19 @@ def progress_every_s_of(cfg: dict) -> float:
     return float(value)
 
 
+def log_metrics_of(cfg: dict) -> str:
+    value = cfg.get("log_metrics", "improvements")
+    if value not in LOG_METRICS:
+        raise ConfigError(f"log_metrics must be one of {', '.join(LOG_METRICS)}, got {value!r}")
+    return value
+
+
+def check_presentation(cfg: dict) -> None:
+    """ConfigError naming the first invalid presentation setting (``progress_every_s``, ``log_metrics``)."""
+    progress_every_s_of(cfg)
+    log_metrics_of(cfg)
+
+
 def identity_of(cfg: dict) -> dict:
     """What defines a job: the whole resolved config but its presentation settings
     (``PRESENTATION_KEYS``). Resuming or skipping compares this (with the data and the code)."""
@@ -144,6 +158,7 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
             progress_every_s=progress_every_s_of(cfg),
             optimizer_class=optimizers.get(cfg["optimizer"]["name"]),
             progress=bool(cfg.get("progress", True)),
+            log_metrics=log_metrics_of(cfg),
         )
     except JobFolderError as err:
         log.error("%s failed: %s", label, err)
@@ -195,4 +210,5 @@ def exit_with_the_sweep() -> None:
 
 
 __all__ = ["ConfigError", "build_problem", "budget_of", "exit_with_the_sweep", "identity_of", "instance_of", "job_key",
+           "check_presentation", "log_metrics_of",
            "plain", "run_configured_job"]

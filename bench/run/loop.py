@@ -107,6 +107,7 @@ def run_job(
     progress_every_s: float = 5.0,
     optimizer_class: type | None = None,
     progress: bool = True,
+    log_metrics: str = "improvements",
 ) -> dict:
     """Run (or resume, or skip when finished) one job in ``job_dir`` and return its final record.
 
@@ -121,7 +122,7 @@ def run_job(
     lock = _lock_job(job_dir)
     try:
         return _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label,
-                           progress_every_s, optimizer_class, progress)
+                           progress_every_s, optimizer_class, progress, log_metrics)
     finally:
         lock.release()
 
@@ -155,7 +156,7 @@ def _refuse(why: str | None) -> None:
 
 
 def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, label, progress_every_s,
-                optimizer_class, progress) -> dict:
+                optimizer_class, progress, log_metrics) -> dict:
     """``run_job`` once the folder is locked: skip a finished job, check the folder, run, write the record."""
     header = job_header(identity, problem, optimizer_class)
     _refuse(linked_file(job_dir))
@@ -198,7 +199,7 @@ def _run_locked(problem, make_optimizer, budget, job_dir, identity, config, labe
         bar = Progress(label, budget, max(0.5, min(float(progress_every_s), 5.0)), progress, state["n_evals"])
         clock0 = time.perf_counter() - state["offset_s"]  # after the set-up: wall_s times the loop
         stop_reason = _run_batches(problem, optimizer, budget, state, evals_log, bar, clock0, stop_reason,
-                                   header["job_key"])
+                                   header["job_key"], log_metrics)
     except RunError as exc:
         if evals_log is None:  # refused before anything was written
             raise
@@ -251,9 +252,9 @@ def _set_aside_corrupt_record(job_dir: Path, corrupt_note: str | None) -> None:
 
 
 def _run_batches(problem, optimizer, budget: Budget, state: dict, evals_log: EvalLog, bar: Progress,
-                 clock0: float, stop_reason: str | None, job_key: str) -> str:
-    """Ask, evaluate, log (each line keyed by ``job_key``) and tell batches until a budget or the
-    optimiser stops; the stop reason."""
+                 clock0: float, stop_reason: str | None, job_key: str, log_metrics: str) -> str:
+    """Ask, evaluate, log (each line keyed by ``job_key``, metrics as ``log_metrics`` says: bookkeeping)
+    and tell batches until a budget or the optimiser stops; the stop reason."""
     while stop_reason is None:
         stop_reason = _budget_stop(budget, state, time.perf_counter() - clock0) or _optimizer_stop(optimizer)
         if stop_reason is not None:
@@ -268,7 +269,7 @@ def _run_batches(problem, optimizer, budget: Budget, state: dict, evals_log: Eva
         f = np.asarray(f, float)
         if f.shape != (len(X),):
             raise RunError(f"problem {problem.name!r} returned f of shape {f.shape} for {len(X)} points")
-        entry = batch_entry(state, X, f, metrics, t_start, t_end)
+        entry = batch_entry(state, X, f, metrics, t_start, t_end, log_metrics)
         entry["job_key"] = job_key
         evals_log.append(entry)
         account(state, entry)

@@ -53,7 +53,7 @@ from bench.records import (
 from bench.run.compose_cache import JobComposer, job_part
 from bench.run.design_checks import TruthWarnings, check_design, dotted_paths, seed_sweep_note
 from bench.run.identity import config_hash, identity_differences
-from bench.run.job import ConfigError, budget_of, identity_of, import_plugins, instance_of, progress_every_s_of, seed_of
+from bench.run.job import ConfigError, budget_of, check_presentation, identity_of, import_plugins, instance_of, seed_of
 from bench.run.log_checks import linked_file
 from bench.space import Space
 
@@ -198,7 +198,7 @@ def check_job(cfg: dict, truths: TruthWarnings | None = None) -> None:
         raise ConfigError(f"problem={pname!r} is not registered; valid names: {', '.join(problems.available())}")
     budget_of(cfg)
     seed_of(cfg)
-    progress_every_s_of(cfg)
+    check_presentation(cfg)
     factory = problems.get(pname)
     checker = getattr(factory, "preflight", None)
     checked = None
