@@ -118,6 +118,19 @@ def test_two_array_tasks_on_one_job_folder_the_second_is_refused_and_nothing_is_
     assert logs(sweep) == {job: logs(serial / "slow")[job]}
 
 
+def refused(cluster, tmp_path: Path, setting: str) -> str:
+    """The one error line of a small sweep the launcher ``setting`` makes refused: exit 2, nothing submitted."""
+    cluster.idle()  # the jobs of earlier tests gone: the queue stays empty if nothing is submitted
+    sweep = tmp_path / "s"
+    proc = bench(cluster, *SPHERE, "instance=range(2)", "hydra/launcher=bench_slurm", setting,
+                 f"hydra.sweep.dir={sweep}", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-3000:]
+    errors = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert not sweep.exists() and cluster.run("squeue", "-h").stdout.strip() == ""
+    return errors[0]
+
+
 @pytest.mark.parametrize("setting, named", [
     ("hydra.launcher.partition=nowhere", "partition=nowhere"),
     ("hydra.launcher.timeout_min=600", "timeout_min=600"),
@@ -126,11 +139,21 @@ def test_two_array_tasks_on_one_job_folder_the_second_is_refused_and_nothing_is_
 ])
 def test_a_setting_the_cluster_refuses_is_one_message_exit_2_and_nothing_submitted(slurm_cluster, tmp_path,
                                                                                    setting, named):
-    slurm_cluster.idle()  # the jobs of earlier tests gone: the queue stays empty if nothing is submitted
-    sweep = tmp_path / "s"
-    proc = bench(slurm_cluster, *SPHERE, "instance=range(2)", "hydra/launcher=bench_slurm", setting,
-                 f"hydra.sweep.dir={sweep}", cwd=tmp_path)
-    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-3000:]
-    errors = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
-    assert len(errors) == 1 and named in errors[0] and "Traceback" not in proc.stderr
-    assert not sweep.exists() and slurm_cluster.run("squeue", "-h").stdout.strip() == ""
+    assert named in refused(slurm_cluster, tmp_path, setting)
+
+
+def test_an_account_without_association_is_refused_before_submission_and_one_with_it_runs(
+        slurm_accounting_cluster, tmp_path):
+    cluster = slurm_accounting_cluster  # associations enforced: root may charge benchacct (and root) only
+    error = refused(cluster, tmp_path, "hydra.launcher.account=nosuchaccount")
+    assert "account=nosuchaccount" in error and "Invalid account" in error
+
+    sweep = tmp_path / "ok"
+    proc = bench(cluster, *SPHERE, "instance=range(2)", "hydra/launcher=bench_slurm", *ON_SLURM,
+                 "hydra.launcher.account=benchacct", f"hydra.sweep.dir={sweep}", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert "Jobs: 2 in all, 2 ok, 0 failed" in proc.stdout and len(records(sweep)) == 2
+    # the sweep's jobs were charged to the account asked for (sacct answers: slurmdbd runs)
+    line = next(x for x in (proc.stdout + proc.stderr).splitlines() if "SLURM/submitit job(s) " in x)
+    charged = cluster.run("sacct", "-X", "-n", "-P", "-o", "Account", "-j", line.rsplit("job(s) ", 1)[1])
+    assert charged.returncode == 0 and charged.stdout.split() == ["benchacct"] * 2, charged.stdout + charged.stderr
