@@ -15,7 +15,8 @@ evaluations in the order they were evaluated. Columns:
   evaluations), ``f``;
 - the batch's times from the log, in seconds since the job started: ``t_start_s``, ``t_end_s``,
   ``eval_s`` (time inside ``Problem.evaluate`` for the whole batch), shared by its evaluations;
-- ``x.<name>`` the decision variables by the record's space names, ``m.<name>`` the metrics.
+- ``x.<name>`` the decision variables by the record's space names, ``m.<name>`` the metrics (NaN
+  where the log kept none: ``log_metrics``, bench.records).
 
 Read it with ``pandas.read_parquet("report/evaluations.parquet")``.
 
