@@ -110,3 +110,13 @@ def test_compare_without_runs_csv_is_exit_2(load_script, tmp_path, monkeypatch, 
     with pytest.raises(SystemExit) as e:
         module.main()
     assert e.value.code == 2 and "runs.csv is absent" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("identity, params, said", [
+    ({"outlier_decisions": "reference_all"}, {"objective": "innovation_nll"}, "reference_all"),  # the record says
+    ({}, {"objective": "innovation_nll"}, "own"),  # a record from before the likelihood's default changed
+    ({}, {"objective": "innovation_nll", "filter": {"outlier_decisions": "reference"}}, "reference"),
+])
+def test_a_runs_decisions_are_those_its_record_names_or_its_configuration_set(load_script, identity, params, said):
+    study = load_script("identifiability")
+    assert study.decisions({"problem_identity": identity, "config": {"problem": {"params": params}}}) == said
