@@ -21,8 +21,11 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_ctrl_c_ends_with_one_line_naming_the_folder_and_the_command_that_resumes_it(tmp_path):
     args = ["problem=sphere", "problem.params.delay_s_per_batch=0.2", "optimizer=random", "instance=range(2)",
             "budget.evals=400", "report=false"]
+    # SIGINT as a terminal delivers it: a shell without job control (`cmd &`, nohup) starts its children with
+    # SIGINT ignored, and Python then installs no KeyboardInterrupt handler
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 60
     while time.time() < deadline and not list((tmp_path / "runs").glob("*/sphere/random/i0/evals.jsonl")):
         time.sleep(0.02)
