@@ -19,12 +19,16 @@ LOG_METRICS = ("improvements", "all")
 
 def improving_points(f, best_before: float, first: bool) -> np.ndarray:
     """Indices (ascending, ints) of a batch's points that can ever be an incumbent: each point whose f
-    (n,) is below ``best_before`` (the job's best so far) and every earlier f of the batch (strictly:
-    ties keep the earlier point; NaN never improves), and the job's first point when ``first`` (the
-    incumbent before anything improved: bench.report.curves.incumbent_index)."""
+    (n,) is below ``best_before`` (the job's best finite f so far) and every earlier f of the batch
+    (strictly: ties keep the earlier point; NaN never improves), and the job's first point when
+    ``first`` (the incumbent before anything improved). Both incumbents count: the record's, among
+    finite values (:func:`account`), and the trace's, where -inf may lead
+    (bench.report.curves.incumbent_index)."""
     f = np.asarray(f, float)
-    before = np.fmin.accumulate(np.concatenate([[best_before], f]))[:-1]
-    improved = f < before
+    finite = np.where(np.isfinite(f), f, np.inf)
+    before_finite = np.minimum.accumulate(np.concatenate([[best_before], finite]))[:-1]
+    before_any = np.fmin.accumulate(np.concatenate([[best_before], f]))[:-1]
+    improved = (finite < before_finite) | (f < before_any)
     if first and len(f):
         improved[0] = True
     return np.flatnonzero(improved)

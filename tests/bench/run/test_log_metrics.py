@@ -21,6 +21,7 @@ from optimizers.random_search import RandomSearch
     ([5.0, 6.0], 1.0, True, [0]),                            # the job's first point: the first incumbent
     ([np.nan, 2.0, np.nan, 1.0], np.inf, False, [1, 3]),     # NaN never improves, nor blocks
     ([np.inf, np.inf], np.inf, True, [0]),                   # a diverged first point is still the first
+    ([-np.inf, 3.0, 2.0], np.inf, False, [0, 1, 2]),         # -inf leads the trace, the finite ones the record
     ([], np.inf, True, []),
 ])
 def test_the_improving_points_are_the_strict_improvements_and_the_first(f, best_before, first, kept):
