@@ -155,5 +155,12 @@ def test_an_account_without_association_is_refused_before_submission_and_one_wit
     assert "Jobs: 2 in all, 2 ok, 0 failed" in proc.stdout and len(records(sweep)) == 2
     # the sweep's jobs were charged to the account asked for (sacct answers: slurmdbd runs)
     line = next(x for x in (proc.stdout + proc.stderr).splitlines() if "SLURM/submitit job(s) " in x)
-    charged = cluster.run("sacct", "-X", "-n", "-P", "-o", "Account", "-j", line.rsplit("job(s) ", 1)[1])
+    job = line.rsplit("job(s) ", 1)[1]
+    # slurmctld hands finished tasks to slurmdbd asynchronously: wait (bounded) until both are on the books
+    deadline = time.monotonic() + 60
+    while True:
+        charged = cluster.run("sacct", "-X", "-n", "-P", "-o", "Account", "-j", job)
+        if len(charged.stdout.split()) >= 2 or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
     assert charged.returncode == 0 and charged.stdout.split() == ["benchacct"] * 2, charged.stdout + charged.stderr
