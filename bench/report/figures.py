@@ -33,8 +33,10 @@ KEY_FIELD = "avio-bench-key"  # PNG text chunk: what the figure was drawn from
 
 
 def figure_key(*parts) -> str:
-    """Hex SHA-256 of what a figure is drawn from (JSON-able parts, bytes or str) and of the
-    drawing code (this module, ``bench.report.paper.figures`` and matplotlib's version)."""
+    """Hex SHA-256 of what a figure is drawn from (JSON-able parts, bytes, str or DataFrames) and of
+    the drawing code (this module, ``bench.report.paper.figures`` and matplotlib's version).
+    A DataFrame enters at 12 significant digits: values a report recomputes (the reference's errors)
+    differ in the last bits between CPUs (numpy's SIMD paths), and no pixel does."""
     import matplotlib
 
     digest = hashlib.sha256(matplotlib.__version__.encode())
@@ -42,6 +44,8 @@ def figure_key(*parts) -> str:
     for module in (here / "figures.py", here / "paper" / "figures.py"):
         digest.update(module.read_bytes())
     for part in parts:
+        if isinstance(part, pd.DataFrame):
+            part = part.to_csv(index=False, float_format="%.12g", lineterminator="\n")
         digest.update(part if isinstance(part, bytes) else
                       (part if isinstance(part, str) else json.dumps(part, sort_keys=True, default=str)).encode())
         digest.update(b"\0")
@@ -95,7 +99,7 @@ def anytime_figure(curves: pd.DataFrame, problem: str, path: Path,
     """
     levels = {k: v for k, v in (levels or {}).items() if v is not None and np.isfinite(v)}
     data = curves[curves["problem"] == problem]
-    key = figure_key("anytime", problem, data.to_csv(index=False), {k: float(v) for k, v in levels.items()})
+    key = figure_key("anytime", problem, data, {k: float(v) for k, v in levels.items()})
     if is_current(path, key):
         return Path(path)
     colors, fig, axes = _panels_per_axis(data)
@@ -167,7 +171,7 @@ def ecdf_figure(ecdf: pd.DataFrame, problem: str, path: Path) -> Path:
     ecdf: ``bench.targets.ecdf`` rows for both axes (column ``axis``).
     """
     data = ecdf[ecdf["problem"] == problem]
-    key = figure_key("ecdf", problem, data.to_csv(index=False))
+    key = figure_key("ecdf", problem, data)
     if is_current(path, key):
         return Path(path)
     colors, fig, axes = _panels_per_axis(data)
@@ -190,7 +194,7 @@ def final_values_figure(frame: pd.DataFrame, problem: str, path: Path, unit: str
     """Box plot and strip of the final best f per optimiser (and the reference row) of one
     problem; frame: the objective's tidy ``problem, optimizer, <key>, value`` (``bench.report.paired``)."""
     data = frame[frame["problem"] == problem]
-    key = figure_key("final", problem, data.to_csv(index=False), unit)
+    key = figure_key("final", problem, data, unit)
     if is_current(path, key):
         return Path(path)
     order = data.groupby("optimizer")["value"].median().sort_values(kind="stable").index.tolist()
@@ -221,7 +225,7 @@ def objective_error_figure(runs: pd.DataFrame, problem: str, errors: list[str], 
     data = runs[(runs["problem"] == problem) & runs["valid"]]
     cols = ["optimizer", "best_f", "f_reference", *[f"m.{e}" for e in errors],
             *[f"ref.{e}" for e in errors if f"ref.{e}" in data.columns]]
-    key = figure_key("scatter", problem, data[cols].to_csv(index=False))
+    key = figure_key("scatter", problem, data[cols])
     if is_current(path, key):
         return Path(path)
     colors = _colors(list(data["optimizer"].unique()))

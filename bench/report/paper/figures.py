@@ -175,7 +175,7 @@ def profile_figure(profile: pd.DataFrame, space: dict, out: Path, objective: str
     the others at the truth (dashed, black) or the reference (dotted, grey) when the truth is
     unknown; a truth outside the bounds is drawn where it is and flagged in the panel title."""
     names = list(dict.fromkeys(profile["variable"]))
-    key = figure_key("profile", profile.to_csv(index=False), space, objective)
+    key = figure_key("profile", profile, space, objective)
     if is_current(out, key):
         return Path(out)
     fig, axes = _grid(len(names))
