@@ -22,11 +22,21 @@
 # hold over twenty?), and (issue 33) the joint likelihood's 4-drive, 7-free one and the excited
 # rig's rows (suffixes _full3d, _td). Then the summary table and figure
 # (studies/identifiability/identifiability.py).
-#   bash studies/identifiability/make_identifiability.sh [evals] [configuration ...]
+#   bash studies/identifiability/make_identifiability.sh [--seeds K] [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
-# others kept; without, the whole study is re-made.
+# others kept; without, the whole study is re-made. With --seeds K, a named configuration without a
+# _<K>seeds suffix has K seeds instead of 5, and one that already has records keeps them: only the
+# seeds it lacks are run (their job folders i<k> beside its seed<k> ones, their sweep's multirun.yaml
+# kept as multirun_seeds<first>-<last>.yaml), so a row grows from 5 to K seeds without re-running the
+# first five (they are the same runs: same instance, same data and optimiser seeds).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
+want=""
+if [ "${1:-}" = --seeds ]; then
+  want=${2:?make_identifiability: --seeds needs a number}
+  [[ $want =~ ^[1-9][0-9]*$ ]] || { echo "make_identifiability: --seeds $want: not a positive whole number" >&2; exit 2; }
+  shift 2
+fi
 evals=${1:-400}
 shift || true
 out=results/identifiability
@@ -57,7 +67,7 @@ if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
   [[ " ${all[*]} " == *" $name "* ]] || { echo "make_identifiability: unknown configuration $name; valid: ${all[*]}" >&2; exit 2; }
-  seeds=5 budget=$evals base=$name
+  seeds=${want:-5} budget=$evals base=$name
   if [[ $base =~ _([0-9]+)seeds$ ]]; then seeds=${BASH_REMATCH[1]}; base=${base%_*seeds}; fi
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
   # a likelihood's default decisions are reference_all (bench/problems/vio.py): a configuration without a
@@ -75,15 +85,41 @@ for name in "$@"; do
   d="[$(printf "$preset,%.0s" $(seq "$n"))]"; d=${d/,]/]}
   extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
-  rm -rf "${out:?}/$name"
+  have=0 sweep="$out/$name"
+  if [ -n "$want" ] && [ -f "$out/$name/records.tar.xz" ]; then
+    # keep the configuration's finished jobs: restore them from the archive (the summary re-packs them)
+    have=$(python - "$out/$name" <<'PY'
+import sys
+from pathlib import Path
+from bench.archive import _extract, ARCHIVE
+folder = Path(sys.argv[1])
+jobs = [m for m in _extract(folder / ARCHIVE, folder) if m.name == "record.json"]
+(folder / ARCHIVE).unlink()
+print(len(jobs))
+PY
+)
+    if [ "$have" -ge "$seeds" ]; then echo "- $name: has $have seeds already"; continue; fi
+    sweep="$out/$name/.seeds$have-$((seeds - 1))"
+    rm -rf "$sweep"
+  else
+    rm -rf "${out:?}/$name"
+  fi
   start=$(date -u +%s)
   # instance k: the camera and drives of data seed k, and CMA-ES's seed k (configurations made before
   # instances existed swept seed=range(k) with data_seed=${seed}: the same runs, folders seed<k>)
-  python -m bench problem=synthetic optimizer=cmaes instance="range($seeds)" budget.evals="$budget" report=false \
+  python -m bench problem=synthetic optimizer=cmaes instance="range($have,$seeds)" budget.evals="$budget" report=false \
     problem.params.space=local problem.params.objective="$objective" "problem.params.drives=$d" \
     problem.params.noise_realisations=$noise "${extra[@]}" "${decisions[@]}" "${timing[@]}" hydra/launcher=joblib hydra.launcher.n_jobs=2 \
-    hydra.sweep.dir="$out/$name"
-  echo "- \`$name\`: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
+    hydra.sweep.dir="$sweep"
+  added=""
+  if [ "$sweep" != "$out/$name" ]; then
+    mv "$sweep"/synthetic/cmaes/i* "$out/$name/synthetic/cmaes/"
+    mv "$sweep/multirun.yaml" "$out/$name/multirun_seeds$have-$((seeds - 1)).yaml"
+    [ -f "$sweep/.outcomes.jsonl" ] && cat "$sweep/.outcomes.jsonl" >> "$out/$name/.outcomes.jsonl"
+    rm -rf "$sweep"
+    added=" (seeds $have-$((seeds - 1)) added)"
+  fi
+  echo "- \`$name\`$added: $(date -u +%Y-%m-%dT%H:%MZ), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- avio bench optimizers || echo '-dirty'), $(( $(date -u +%s) - start )) s" >> "$out/.provenance"
 done
 # the summary, then each new configuration packed into its records.tar.xz without the evaluation logs
 python studies/identifiability/identifiability.py "$out" --pack
