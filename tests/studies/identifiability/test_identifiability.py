@@ -3,6 +3,10 @@ compared seed by seed."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -120,3 +124,32 @@ def test_compare_without_runs_csv_is_exit_2(load_script, tmp_path, monkeypatch, 
 def test_a_runs_decisions_are_those_its_record_names_or_its_configuration_set(load_script, identity, params, said):
     study = load_script("identifiability")
     assert study.decisions({"problem_identity": identity, "config": {"problem": {"params": params}}}) == said
+
+
+def _record(seed: int) -> dict:
+    return {"status": "ok", "seed": seed, "n_evals": 400, "best_f": 1.0, "f_truth": 1.5, "best_x": [0.0],
+            "best_metrics": {"rotation_error_deg": 0.1 * seed, "focal_error_px": 1.0, "principal_point_error_px": 1.0,
+                             "translation_error_cm": 1.0},
+            "config": {"problem": {"params": {"objective": "innovation_nll", "drives": ["paper_540m"],
+                                              "data_seed": seed, "filter": {"outlier_decisions": "own"}}}}}
+
+
+def test_a_row_grown_by_added_seeds_reads_its_old_and_new_jobs_as_one_configuration(load_script, tmp_path):
+    # make_identifiability --seeds 10 puts jobs i5..i9 beside a configuration's seed0..seed4
+    study = load_script("identifiability")
+    for name, seed in [*((f"seed{k}", k) for k in range(5)), *((f"i{k}", k) for k in range(5, 10))]:
+        job = tmp_path / "cfg" / "synthetic" / "cmaes" / name
+        job.mkdir(parents=True)
+        (job / "record.json").write_text(json.dumps(_record(seed)))
+    runs = study.load(tmp_path)
+    assert list(runs.config.unique()) == ["cfg"] and sorted(runs.seed) == list(range(10))
+    assert sorted(runs.data_seed) == list(range(10)) and set(runs.decisions) == {"own"}
+
+
+@pytest.mark.parametrize("argv, says", [(["--seeds", "x"], "--seeds x: not a positive whole number"),
+                                        (["--seeds", "0"], "--seeds 0: not a positive whole number"),
+                                        (["--seeds", "10", "400", "nosuch"], "unknown configuration nosuch")])
+def test_the_study_script_refuses_bad_input_with_exit_2_before_any_run(argv, says):
+    script = Path(__file__).parents[3] / "studies" / "identifiability" / "make_identifiability.sh"
+    proc = subprocess.run(["bash", str(script), *argv], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and says in proc.stderr and "Jobs:" not in proc.stdout, proc.stderr
