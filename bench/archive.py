@@ -114,6 +114,19 @@ def _extract(archive: Path, into: Path) -> list[Path]:
     return [Path(m.name) for m in members]
 
 
+def unpack(sweep_dir: str | Path) -> list[Path]:
+    """The inverse of ``pack(sweep_dir, remove=True)``: restore the archive's files into the folder
+    and delete the archive (for a sweep that will add jobs and be packed again). Refuses to
+    overwrite a file. Returns the restored files (relative)."""
+    sweep_dir = Path(sweep_dir)
+    archive = sweep_dir / ARCHIVE
+    if not archive.is_file():
+        raise ArchiveError(f"{archive}: no archive to unpack")
+    members = _extract(archive, sweep_dir)
+    archive.unlink()
+    return members
+
+
 def has_records(sweep_dir: Path) -> bool:
     return any(p.name == "record.json" for p in Path(sweep_dir).rglob("record.json")
                if "report" not in p.relative_to(sweep_dir).parts[:1])

@@ -90,12 +90,8 @@ for name in "$@"; do
     # keep the configuration's finished jobs: restore them from the archive (the summary re-packs them)
     have=$(python - "$out/$name" <<'PY'
 import sys
-from pathlib import Path
-from bench.archive import _extract, ARCHIVE
-folder = Path(sys.argv[1])
-jobs = [m for m in _extract(folder / ARCHIVE, folder) if m.name == "record.json"]
-(folder / ARCHIVE).unlink()
-print(len(jobs))
+from bench.archive import unpack
+print(sum(m.name == "record.json" for m in unpack(sys.argv[1])))
 PY
 )
     if [ "$have" -ge "$seeds" ]; then echo "- $name: has $have seeds already"; continue; fi

@@ -99,3 +99,19 @@ def test_a_study_may_leave_the_logs_out_of_its_archive(tmp_path):
     assert [r for _, r in job_records(tmp_path / "c")] == [{"best_f": 1.0}]
     with records_restored([tmp_path / "c"]):
         assert (job / "record.json").is_file() and not (job / "evals.jsonl").exists()
+
+
+def test_unpack_restores_what_pack_removed_and_the_folder_packs_to_the_same_bytes(tmp_path):
+    from bench.archive import unpack
+
+    job = tmp_path / "c" / "synthetic" / "cmaes" / "seed0"
+    job.mkdir(parents=True)
+    (job / "record.json").write_text('{"best_f": 1.0}')
+    (tmp_path / "c" / "multirun.yaml").write_text("hydra: {}\n")
+    packed = pack(tmp_path / "c", remove=True).read_bytes()
+    restored = unpack(tmp_path / "c")
+    assert sorted(p.as_posix() for p in restored) == ["multirun.yaml", "synthetic/cmaes/seed0/record.json"]
+    assert not (tmp_path / "c" / ARCHIVE).exists() and (job / "record.json").read_text() == '{"best_f": 1.0}'
+    assert pack(tmp_path / "c").read_bytes() == packed  # nothing changed on the way
+    with pytest.raises(ArchiveError, match="no archive to unpack"):
+        unpack(tmp_path / "nothing")
