@@ -84,11 +84,15 @@ def design(n: int, h: np.ndarray) -> np.ndarray:
 
 
 def derivatives(f: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gradient (n,) and Hessian (n, n) from the values f at :func:`design`'s points."""
+    """Gradient (n, ...) and Hessian (n, n, ...) from the values f (n_points, ...) at :func:`design`'s
+    points (trailing axes of f, e.g. frames, carried through)."""
     n = len(h)
-    f0, axis = f[0], f[1:1 + 2 * n].reshape(n, 2)
-    g = (axis[:, 0] - axis[:, 1]) / (2 * h)
-    H = np.diag((axis[:, 0] + axis[:, 1] - 2 * f0) / h**2)
+    f = np.asarray(f, float)
+    hh = h.reshape((n,) + (1,) * (f.ndim - 1))
+    f0, axis = f[0], f[1:1 + 2 * n].reshape((n, 2) + f.shape[1:])
+    g = (axis[:, 0] - axis[:, 1]) / (2 * hh)
+    H = np.zeros((n, n) + f.shape[1:])
+    H[np.arange(n), np.arange(n)] = (axis[:, 0] + axis[:, 1] - 2 * f0) / hh**2
     k = 1 + 2 * n
     for i in range(n):
         for j in range(i + 1, n):
