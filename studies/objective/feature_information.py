@@ -37,7 +37,8 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from avio.filter.measurement import feature_residuals
-from avio.filter.update import NOISE_FLOOR, USED_RESIDUALS
+from avio.filter.outliers import forward_lanes
+from avio.filter.update import USED_RESIDUALS, _noise_model
 
 FX, CX, CY, SIZE = 718.856, 607.1928, 185.2157, (1241, 376)
 STEP = np.array([1.5, 1.5, 1.5])  # px: f, cx, cy (information_equality.py's steps)
@@ -74,40 +75,39 @@ def triplet(yaw_rate: float, n_points: int, rng, step_m: float = 0.69, dt: float
 
 # not cached: numba's cache of a script loaded by path (the tests) breaks the script run as __main__
 @numba.njit
-def _nll(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, floor, out, nis, gain):
-    """Per draw d, feature f and intrinsics row p: the feature's NLL (Eq. 35's R_f) into out
-    (D, F, P); NIS at row 0 into nis (D, F); the largest transfer gain at row 0 into gain (D, F)."""
-    r = np.empty(4)
-    J = np.empty((4, 12))
-    G = np.empty((4, 6))
-    m = len(used)
-    Rf = np.empty((m, m))
-    ru = np.empty(m)
+def _nll(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, out, nis, gain):
+    """Per draw d, feature f and intrinsics row p: the feature's NLL into out (D, F, P), scored as
+    the filter scores it (its own R_f, Cholesky and log det: update._noise_model, Eq. 35); NIS at
+    row 0 into nis (D, F); the largest transfer gain at row 0 into gain (D, F)."""
+    F, m = uv.shape[1], len(used)
+    r, J, G = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
+    ru, Gp = np.empty((m, F)), np.empty((m, 6, F))
+    Rm, sd, Lm, ldR = np.empty((m, m, F)), np.empty((m, F)), np.zeros((m, m, F)), np.empty(F)
+    y = np.empty((m, F))
     for d in range(uv.shape[0]):
-        for f in range(uv.shape[1]):
-            for p in range(intrinsics.shape[0]):
-                fx, fy, cx, cy = intrinsics[p, 0], intrinsics[p, 1], intrinsics[p, 2], intrinsics[p, 3]
+        for p in range(intrinsics.shape[0]):
+            fx, fy, cx, cy = intrinsics[p, 0], intrinsics[p, 1], intrinsics[p, 2], intrinsics[p, 3]
+            for f in range(F):
                 feature_residuals(uv[d, f], R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G, False)
                 for a in range(m):
-                    ru[a] = r[used[a]]
-                    for b in range(m):
-                        s = 0.0
-                        for c in range(6):
-                            s += G[used[a], c] * G[used[b], c]
-                        Rf[a, b] = sigma * sigma * s
-                    Rf[a, a] += (floor * sigma) ** 2
-                z = np.linalg.solve(Rf, ru)
-                q = 0.0
-                for a in range(m):
-                    q += ru[a] * z[a]
-                out[d, f, p] = 0.5 * (q + np.log(np.linalg.det(Rf)))
+                    ru[a, f] = r[used[a]]
+                    for c in range(6):
+                        Gp[a, c, f] = G[used[a], c]
                 if p == 0:
-                    nis[d, f] = q
                     g = 0.0
                     for a in range(2, 4):
                         for c in range(4):
                             g = max(g, abs(G[a, c]))
                     gain[d, f] = g
+            _noise_model(Gp, sigma, Rm, sd, Lm, ldR)
+            forward_lanes(Lm, ru, y)
+            for f in range(F):
+                q = 0.0
+                for a in range(m):
+                    q += y[a, f] * y[a, f]
+                out[d, f, p] = 0.5 * (q + ldR[f])
+                if p == 0:
+                    nis[d, f] = q
 
 
 def intrinsics_design() -> np.ndarray:
@@ -134,11 +134,11 @@ def measure(sigma: float, yaw_rate: float, draws: int, n_points: int = 300, max_
     noisy = uv3[None] + (sigma if data_sigma is None else data_sigma) * rng.standard_normal((draws,) + uv3.shape)
     out = np.empty((draws, len(uv3), 7))
     nis, gain = np.empty((draws, len(uv3))), np.empty((draws, len(uv3)))
-    _nll(noisy, *poses, intrinsics_design(), sigma, USED, NOISE_FLOOR, out, nis, gain)
+    _nll(noisy, *poses, intrinsics_design(), sigma, USED, out, nis, gain)
     # the filter drops a feature whose transfer gain exceeds the limit: judged on the noise-free pixels
     clean = np.empty((1, len(uv3), 7))
     clean_nis, clean_gain = np.empty((1, len(uv3))), np.empty((1, len(uv3)))
-    _nll(uv3[None], *poses, intrinsics_design(), sigma, USED, NOISE_FLOOR, clean, clean_nis, clean_gain)
+    _nll(uv3[None], *poses, intrinsics_design(), sigma, USED, clean, clean_nis, clean_gain)
     keep = clean_gain[0] <= max_gain
     out, nis = out[:, keep], nis[:, keep]
     plus, minus = out[:, :, 1::2], out[:, :, 2::2]
