@@ -185,14 +185,16 @@ def _sequence_inputs(sequence: Sequence, prep: _Prepared, config: FilterConfig) 
 
 
 def _outputs(n: int, N: int, used_shape: tuple) -> Outputs:
-    """The kernel's Outputs for n filters and N frames (used: (n, n_trip, F) or (0, ...))."""
+    """The kernel's Outputs for n filters and N frames (used: (n, n_trip, F) or (0, ...); the
+    update's linearisation record with the same leading size)."""
     def i64():
         return np.zeros((n, N), np.int64)
 
     return Outputs(p=np.empty((n, N, 3)), R=np.empty((n, N, 3, 3)), v=np.empty((n, N, 3)), sigma=np.empty((n, N, 15)),
                    ba=np.empty((n, N, 3)), bg=np.empty((n, N, 3)), n_updates=i64(), n_outliers=i64(),
                    diverged_at=np.empty(n, np.int64), nis=np.empty((n, N)), log_det_S=np.empty((n, N)), dof=i64(),
-                   nll=np.empty((n, N)), nll_slots=i64(), used=np.zeros(used_shape, np.uint8))
+                   nll=np.empty((n, N)), nll_slots=i64(), used=np.zeros(used_shape, np.uint8),
+                   pose_cov=np.zeros((used_shape[0], N, 12, 12)), update_poses=np.zeros((used_shape[0], N, 3, 4, 3)))
 
 
 _MODES = {"none": MODE_NONE, "ransac": MODE_RANSAC, "mahalanobis": MODE_GATE,
@@ -235,7 +237,8 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     sequence: IMU, frame times, ground truth (for the initial state only) and tracks.
     calibrations: batch of n candidate calibrations.
     prepared: output of :func:`prepare` for this (sequence, config), to reuse across calls.
-    record_used: also return which features each update used (FilterResult.used).
+    record_used: also return which features each update used (FilterResult.used) and what each
+        update linearised about (FilterResult.pose_cov, update_poses).
     Returns a :class:`FilterResult` with (n, N, ...) estimates at the frames.
     """
     _check_input(sequence, calibrations)
@@ -278,4 +281,6 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     return FilterResult(o.p, o.R, o.v, o.diverged_at >= 0, o.diverged_at, o.n_updates, o.n_outliers, o.sigma, o.ba,
                         o.bg, o.nis, o.log_det_S, o.dof, o.nll, o.nll_slots,
                         used=o.used.astype(bool) if record_used else None,
+                        pose_cov=o.pose_cov if record_used else None,
+                        update_poses=o.update_poses if record_used else None,
                         meta={"config": result_config})

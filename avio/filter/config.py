@@ -168,6 +168,11 @@ class FilterResult:
         (avio/objectives.py); zero where no trifocal update ran.
     used (n, n_triplets, F) bool: the features each triplet's update used (only when run with
         ``record_used``; False where no update ran).
+    pose_cov (n, N, 12, 12): the covariance ``Sigma = C P C^T`` of the 12 relative-pose errors
+        ``[psi12, dt12, psi13, dt13]`` (rad, m; docs/model.md, Eq. 37) of frame k's trifocal update,
+        and update_poses (n, N, 3, 4, 3) the IMU poses it linearised about: frames k-2 and k-1
+        (the clones, at their exposure times) and k (predicted), rows 0-2 R_world_imu and row 3
+        p_world_imu (m); only with ``record_used``, zero where no trifocal update ran.
     """
 
     p_world_imu_m: np.ndarray
@@ -186,4 +191,6 @@ class FilterResult:
     nll: np.ndarray | None = None
     nll_slots: np.ndarray | None = None
     used: np.ndarray | None = None
+    pose_cov: np.ndarray | None = None
+    update_poses: np.ndarray | None = None
     meta: dict = field(default_factory=dict)

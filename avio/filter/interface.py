@@ -90,6 +90,8 @@ class Outputs(NamedTuple):
     nll: np.ndarray  #: (n, N) NLL contribution of the update (Eq. 46)
     nll_slots: np.ndarray  #: (n, N) int64 residual slots it covers
     used: np.ndarray  #: (n, n_trip, F) uint8 features used, or (0, n_trip, F): not recorded
+    pose_cov: np.ndarray  #: (n, N, 12, 12) Sigma = C P C^T of frame k's update (Eq. 37), or (0, N, 12, 12)
+    update_poses: np.ndarray  #: (n, N, 3, 4, 3) the IMU poses frame k's update linearises about, or (0, ...)
 
 
 class FilterState(NamedTuple):

@@ -190,7 +190,9 @@ def run_filters(lo, hi, seq, cal, cfg, out):
     interface.Outputs, rows lo..hi-1 written: estimates, update counts, divergence frame and the
     innovation statistics of each frame's update (NIS, log det S, residual count, NLL
     contribution and residual slots; zero where no trifocal update ran); ``out.used`` (n, n_trip,
-    F) uint8, or (0, ...) not to record them: which features each triplet's update used.
+    F) uint8, or (0, ...) not to record them: which features each triplet's update used; with it
+    ``out.pose_cov`` and ``out.update_poses``: each update's relative-pose covariance and the
+    poses it linearised about.
     One set of workspaces is allocated here (nothing is allocated in the frame loop); it releases
     the GIL, so avio/filter/batch.py runs contiguous ranges of a batch on several threads at once
     (each filter on one thread, with the same operations as alone: the bits do not depend on the
@@ -252,11 +254,15 @@ def run_filters(lo, hi, seq, cal, cfg, out):
                                           zws)
             elif k >= 2 and j >= 0:
                 decided = out.used[i, j] if record else no_record
+                if record:
+                    _record_poses(out.update_poses[i, k], x)
                 used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
                                                               record, decided)
                 out.n_updates[i, k], out.n_outliers[i, k] = used, rej
                 out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof
                 out.nll[i, k], out.nll_slots[i, k] = nll, slots
+                if record:
+                    copy2(out.pose_cov[i, k], uws.update.Sig)
             # Slide (Eq. 50).
             slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)
             # Divergence (Eq. 51): this frame's outputs are those of the last good one.
@@ -301,6 +307,8 @@ def _clear_updates(out, i, record):
     out.nll_slots[i, :] = 0
     if record:
         out.used[i] = 0
+        out.pose_cov[i] = 0.0
+        out.update_poses[i] = 0.0
 
 
 @kernel_jit
@@ -315,3 +323,20 @@ def _clear_update(out, i, k, j, record):
     out.nll_slots[i, k] = 0
     if record and j >= 0:
         out.used[i, j] = 0
+    if record:
+        out.pose_cov[i, k] = 0.0
+        out.update_poses[i, k] = 0.0
+
+
+@kernel_jit
+def _record_poses(poses, x):
+    """The IMU poses an update linearises about into poses (3, 4, 3): the clones of frames k-2,
+    k-1 and the predicted frame k (FilterState x), rows 0-2 R_world_imu, row 3 p_world_imu."""
+    for a in range(3):
+        for b in range(3):
+            poses[0, a, b] = x.cR0[a, b]
+            poses[1, a, b] = x.cR1[a, b]
+            poses[2, a, b] = x.R[a, b]
+        poses[0, 3, a] = x.cp0[a]
+        poses[1, 3, a] = x.cp1[a]
+        poses[2, 3, a] = x.p[a]

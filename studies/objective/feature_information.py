@@ -110,17 +110,18 @@ def _nll(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, out, nis, ga
                     nis[d, f] = q
 
 
-def intrinsics_design() -> np.ndarray:
-    """(7, 4) rows (fx, fy, cx, cy): the truth, then each of f (fx and fy together), cx, cy at +-STEP."""
-    base = np.array([FX, FX, CX, CY])
+def intrinsics_design(base=(FX, FX, CX, CY), step: np.ndarray = STEP) -> np.ndarray:
+    """(7, 4) rows (fx, fy, cx, cy): the truth ``base``, then each of f (fx and fy together), cx, cy
+    at +-step (px)."""
+    base = np.asarray(base, float)
     rows = [base]
     for i in range(3):
         for sign in (1.0, -1.0):
             row = base.copy()
             if i == 0:
-                row[:2] += sign * STEP[0]
+                row[:2] += sign * step[0]
             else:
-                row[1 + i] += sign * STEP[i]
+                row[1 + i] += sign * step[i]
             rows.append(row)
     return np.array(rows)
 

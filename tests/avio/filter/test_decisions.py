@@ -32,6 +32,29 @@ def test_the_recorded_decisions_are_the_features_each_update_used(drive):
     assert (res.n_outliers.sum() > 0) and run(seq, seq.reference_calibration, cfg, prep).used is None
 
 
+def test_the_record_holds_each_updates_linearisation_and_changes_nothing_else(drive):
+    seq, cfg = drive
+    prep = prepare(seq, cfg)
+    cal = _candidates(seq.reference_calibration, 3, seed=2)
+    cal = Calibration(**{**cal.__dict__, "time_offset_s": np.zeros(3)})  # clones at the frame times
+    plain = run(seq, cal, cfg, prep)
+    rec = run(seq, cal, cfg, prep, record_used=True)
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(rec, name), getattr(plain, name), err_msg=name)
+    assert plain.pose_cov is None and plain.update_poses is None
+    n, N = rec.n_updates.shape
+    assert rec.pose_cov.shape == (n, N, 12, 12) and rec.update_poses.shape == (n, N, 3, 4, 3)
+    updated = rec.dof > 0
+    # Sigma = C P C^T: symmetric positive definite where an update ran, zero elsewhere
+    Sig = rec.pose_cov[updated]
+    np.testing.assert_array_equal(Sig, np.swapaxes(Sig, 1, 2))
+    assert np.all(np.linalg.eigvalsh(Sig) > 0) and not rec.pose_cov[~updated].any()
+    # the clone of frame k-1 is that frame's estimate, copied at the slide (no time offset)
+    i, k = np.nonzero(updated)
+    np.testing.assert_array_equal(rec.update_poses[i, k, 1, :3], rec.R_world_imu[i, k - 1])
+    np.testing.assert_array_equal(rec.update_poses[i, k, 1, 3], rec.p_world_imu_m[i, k - 1])
+
+
 @pytest.mark.parametrize("source", ["reference", "reference_all"])
 def test_at_the_reference_imposed_decisions_give_the_filters_own_estimates_bit_for_bit(drive, source):
     seq, cfg = drive
