@@ -99,9 +99,6 @@ class FilterConfig:
     imu_noise_scale: multiplies the sequence's ImuNoise densities (process noise, Eq. 17).
     divergence_max_variance, divergence_max_speed_mps: divergence thresholds (m^2 or (m/s)^2
         or rad^2 on any diagonal entry of the covariance; m/s on the estimated speed; Eq. 51).
-    update_iterations: passes of each trifocal update, 1-10: 1 is the extended Kalman update
-        (Eqs. 41-42); more re-linearise it at the corrected state (the iterated update, Eq. 43a,
-        avio/filter/iterated.py); the innovation statistics are the first pass's either way.
     """
 
     rk4_max_step_s: float = 0.005
@@ -129,7 +126,6 @@ class FilterConfig:
     imu_noise_scale: float = 1.0
     divergence_max_variance: float = 1e6
     divergence_max_speed_mps: float = 100.0
-    update_iterations: int = 1
 
     @property
     def chi2_threshold(self) -> float:
@@ -143,10 +139,6 @@ class FilterConfig:
         if self.outlier_decisions not in DECISION_SOURCES:
             raise FilterError(f"FilterConfig.outlier_decisions must be one of {DECISION_SOURCES}, "
                               f"got {self.outlier_decisions!r}")
-        if not (isinstance(self.update_iterations, int) and not isinstance(self.update_iterations, bool)
-                and 1 <= self.update_iterations <= 10):
-            raise FilterError(f"FilterConfig.update_iterations = {self.update_iterations!r}: must be an integer "
-                              "from 1 to 10")
         if self.max_update_features < 1 or self.rk4_max_step_s <= 0:
             raise FilterError("FilterConfig: max_update_features >= 1 and rk4_max_step_s > 0 required")
         for name in ("pixel_sigma_px", "max_transfer_gain", "zero_velocity_sigma_mps", "stationary_imu_window_s",

@@ -70,7 +70,6 @@ class Settings(NamedTuple):
     zero_velocity_sigma_mps: float  #: zero-velocity pseudo-measurement noise, m/s (Eq. 49); 0: off
     max_variance: float  #: divergence: largest covariance diagonal (Eq. 51)
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
-    update_iterations: int  #: passes of the trifocal update (1: Eqs. 41-42; more: Eq. 43a)
 
 
 class Outputs(NamedTuple):
@@ -133,9 +132,6 @@ class UpdateWorkspace(NamedTuple):
     CP: np.ndarray  #: (d, 27) C P
     E3: np.ndarray  #: (3, 3)
     T3: np.ndarray  #: (3, 3)
-    Sig_i: np.ndarray  #: (d, d) Sigma of an iterated pass (avio.filter.iterated; Eq. 43a)
-    dlin: np.ndarray  #: (27,) the correction an iterated pass linearises at
-    nominal: np.ndarray  #: (45,) the predicted nominal state, kept while iterating
 
 
 class NoiseWorkspace(NamedTuple):

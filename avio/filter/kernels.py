@@ -31,7 +31,6 @@ import numpy as np
 from avio.filter._linalg import copy1, copy2, solve
 from avio.filter._simd import kernel_jit
 from avio.filter.interface import FilterState, UpdateWorkspaces, ZeroVelocityWorkspace
-from avio.filter.iterated import relinearised_update
 from avio.filter.measurement import measure_workspace, shifted_pose
 from avio.filter.propagation import propagate_one, propagate_workspace
 from avio.filter.update import inject, noise_workspace, outlier_workspace, update, update_workspace
@@ -259,8 +258,6 @@ def run_filters(lo, hi, seq, cal, cfg, out):
                     _record_poses(out.update_poses[i, k], x)
                 used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
                                                               record, decided)
-                if cfg.update_iterations > 1 and used > 0:
-                    relinearised_update(x, omega, cal, i, seq.uv[j], cfg.update_iterations, uws)
                 out.n_updates[i, k], out.n_outliers[i, k] = used, rej
                 out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof
                 out.nll[i, k], out.nll_slots[i, k] = nll, slots

@@ -61,7 +61,7 @@ def update_workspace(F):
         t12=np.empty(3), t13=np.empty(3), HP=np.empty((M, d, F)), z=np.empty((M, F)), ok=np.empty(F, np.bool_),
         inl=np.empty(F, np.bool_), gate=np.empty(F, np.bool_), A=np.empty((d, d)), Mx=np.empty((d, d)),
         X=np.empty((d, d + 1)), K=np.empty((27, d)), dx=np.empty(27), CP=np.empty((d, 27)), E3=np.empty((3, 3)),
-        T3=np.empty((3, 3)), Sig_i=np.empty((d, d)), dlin=np.empty(27), nominal=np.empty(45))
+        T3=np.empty((3, 3)))
 
 
 
@@ -178,7 +178,7 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     F, d = uv.shape[0], 12
     u_, n_, o_ = ws.update, ws.noise, ws.outliers
     r4, J4, C, PCt, Sig, t12, t13, HP, z = u_.r4, u_.J4, u_.C, u_.PCt, u_.Sig, u_.t12, u_.t13, u_.HP, u_.z
-    ok, inl, gate, A, Mx, X, dx, CP = u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X, u_.dx, u_.CP
+    ok, inl, gate, A, Mx, X, K, dx, CP = u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X, u_.K, u_.dx, u_.CP
     G4, r, J, Gp, Rm, sd, Lm, ldR, ldS = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
     rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
     sigma_px, max_transfer_gain, min_parallax_m = cfg.sigma_px, cfg.max_transfer_gain, cfg.min_parallax_m
@@ -336,17 +336,6 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
         for b in range(d):
             acc += PCt[a, b] * X[b, d]
         dx[a] = acc
-    # Eqs. (42) and (8), unless the iterated update (avio/filter/iterated.py) re-linearises first.
-    if cfg.update_iterations == 1 or used == 0:
-        apply_correction(x, u_)
-    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
-
-
-@kernel_jit
-def apply_correction(x, u_):
-    """The covariance update (Eq. 42) and the injection of the correction (Eq. 8) of filter state x
-    (FilterState) from the update workspace u_ (its PCt, X, CP and dx)."""
-    Pi, PCt, X, K, CP, dx, d = x.P, u_.PCt, u_.X, u_.K, u_.CP, u_.dx, 12
     # Eq. (42): P -= (PCt X[:, :12]) CP: the lower triangle, mirrored (P stays exactly symmetric).
     for a in range(27):
         for b in range(d):
@@ -364,3 +353,4 @@ def apply_correction(x, u_):
             Pi[c, a] = Pi[a, c]
     # Eq. (8): the injection.
     inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)
+    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
