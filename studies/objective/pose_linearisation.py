@@ -105,14 +105,14 @@ def perturbed(R12, t12, R13, t13, delta: np.ndarray) -> tuple[np.ndarray, ...]:
 
 # not cached: numba's cache of a script loaded by path (the tests) breaks the script run as __main__
 @numba.njit
-def _whitened(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, Y, JW, LD):
+def _whitened(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, Y, JW, LD, uv_noise=None):
     """For draw d (its pixels uv (D, F, 3, 2) and poses), intrinsics row p (fx, fy, cx, cy) and
     feature f: the whitened used residuals Y (D, P, F, M) = L^-1 r and Jacobian JW (D, P, F, M, 12)
-    = L^-1 J with R_f = L L^T the filter's own noise model (update._noise_model, Eq. 35), and
-    log det R_f into LD (D, P, F)."""
+    = L^-1 J with R_f = L L^T the filter's own noise model (update._noise_model, Eq. 35) taken at
+    the pixels uv (as the filter does) or at uv_noise (D, F, 3, 2), and log det R_f into LD (D, P, F)."""
     D, F = uv.shape[0], uv.shape[1]
     m = len(used)
-    r, J, G = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
+    r, J, G, r4, J4 = np.empty(4), np.empty((4, 12)), np.empty((4, 6)), np.empty(4), np.empty((4, 12))
     ru, Ju, Gp = np.empty((m, F)), np.empty((m, 12, F)), np.empty((m, 6, F))
     Rm, sd, Lm, ldR = np.empty((m, m, F)), np.empty((m, F)), np.zeros((m, m, F)), np.empty(F)
     y, col = np.empty((m, F)), np.empty((m, F))
@@ -128,6 +128,10 @@ def _whitened(uv, R12, t12, R13, t13, R23, t23, intrinsics, sigma, used, Y, JW, 
                     ru[a, f] = r[used[a]]
                     for c in range(12):
                         Ju[a, c, f] = J[used[a], c]
+                if uv_noise is not None:  # the noise model's sensitivities at other pixels (r, J kept)
+                    feature_residuals(uv_noise[d, f], R12[d], T12, R13[d], T13, R23[d], T23, fx, fy, cx, cy, r4, J4,
+                                      G, False)
+                for a in range(m):
                     for c in range(6):
                         Gp[a, c, f] = G[used[a], c]
             _noise_model(Gp, sigma, Rm, sd, Lm, ldR)
