@@ -1,4 +1,4 @@
-"""Is the filter's state consistent at the true calibration? Position and orientation NEES per axis
+"""Is the filter's state consistent at the true calibration? Position, orientation and velocity NEES per axis
 over the drive's quarters, on fresh drives (issue 33: where the scores' cross-lag excess comes from).
 
 At the truth a consistent filter's normalised estimation error squared, per axis
@@ -34,17 +34,19 @@ from score_lags import sim_config
 from avio.sim.simulator import simulate
 from bench.problems.synthetic import Synthetic
 
-AXES = ("px", "py", "pz", "roll", "pitch", "yaw")
+AXES = ("px", "py", "pz", "roll", "pitch", "yaw", "vx", "vy", "vz")
 
 
 def normalised_errors(p_est: np.ndarray, R_est: np.ndarray, p_true: np.ndarray, R_true: np.ndarray,
-                      sigma: np.ndarray) -> np.ndarray:
+                      sigma: np.ndarray, v_est: np.ndarray | None = None, v_true: np.ndarray | None = None) -> np.ndarray:
     """(N, 6) squared errors over the filter's variances: position (world, m) then the IMU-frame
-    rotation error dtheta = Log(R_true^T R_est) (rad); p (N, 3), R (N, 3, 3) R_world_imu, sigma
-    (N, >= 6) the filter's standard deviations in the error state's order (Eq. 8)."""
+    rotation error dtheta = Log(R_true^T R_est) (rad); with v_est, v_true (N, 3) also the velocity
+    (world, m/s): (N, 9). p (N, 3), R (N, 3, 3) R_world_imu, sigma (N, >= 9) the filter's standard
+    deviations in the error state's order (Eq. 8: p, theta, v, ...)."""
     dtheta = Rotation.from_matrix(np.einsum("nji,njk->nik", R_true, R_est)).as_rotvec()
-    error = np.concatenate([p_est - p_true, dtheta], axis=1)
-    return (error / sigma[:, :6]) ** 2
+    parts = [p_est - p_true, dtheta] + ([] if v_est is None else [v_est - v_true])
+    error = np.concatenate(parts, axis=1)
+    return (error / sigma[:, :error.shape[1]]) ** 2
 
 
 def measure(seeds, n_drives: int, sim: dict | None, filter_options: dict | None) -> tuple[np.ndarray, int]:
@@ -64,7 +66,8 @@ def measure(seeds, n_drives: int, sim: dict | None, filter_options: dict | None)
                 skipped += 1
                 continue
             out.append(normalised_errors(res.p_world_imu_m[0], res.R_world_imu[0], drive.truth.p_world_imu_m,
-                                         drive.truth.R_world_imu, res.sigma[0]))
+                                         drive.truth.R_world_imu, res.sigma[0], res.v_world_imu_mps[0],
+                                         drive.truth.v_world_imu_mps))
     return np.array(out), skipped
 
 
@@ -72,7 +75,8 @@ def report(e2: np.ndarray, parts: int = 4) -> list[str]:
     """Mean NEES per axis over drives and frames in each of the drive's ``parts`` time slices."""
     N = e2.shape[1]
     edges = np.linspace(0, N, parts + 1).astype(int)
-    lines = ["| frames | " + " | ".join(AXES) + " |", "|---" * (len(AXES) + 1) + "|"]
+    axes = AXES[:e2.shape[-1]]
+    lines = ["| frames | " + " | ".join(axes) + " |", "|---" * (len(axes) + 1) + "|"]
     for a, b in zip(edges[:-1], edges[1:]):
         lines.append(f"| {a}–{b - 1} | " + " | ".join(f"{v:.2f}" for v in e2[:, a:b].mean(axis=(0, 1))) + " |")
     return lines

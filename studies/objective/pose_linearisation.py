@@ -94,6 +94,25 @@ def pose_error(est: tuple, true: tuple) -> np.ndarray:
     return np.concatenate([log(R12, T12), u12 - t12, log(R13, T13), u13 - t13], axis=-1)
 
 
+def prediction_error(est: tuple, true: tuple, Sigma: np.ndarray) -> np.ndarray:
+    """(..., 6) squared errors over variances of the relative pose 2-3, ``[psi23, dt23]`` (camera 3
+    in camera 2; clone k-1 to the predicted frame k: one frame of prediction), from the estimated
+    and true (R12, t12, R13, t13) and Sigma (..., 12, 12) mapped by ``psi23 = psi13 - R23^T psi12``,
+    ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)`` (avio/filter/measurement.py)."""
+    def pair(R12, t12, R13, t13):
+        return np.swapaxes(R12, -1, -2) @ R13, np.einsum("...ji,...j->...i", R12, t13 - t12)
+    (A, a), (B, b) = pair(*est), pair(*true)
+    rel = np.swapaxes(A, -1, -2) @ B
+    e = np.concatenate([Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec().reshape(rel.shape[:-1]), b - a], -1)
+    R12t = np.swapaxes(est[0], -1, -2)
+    L = np.zeros(A.shape[:-2] + (6, 12))
+    L[..., 0:3, 0:3], L[..., 0:3, 6:9] = -np.swapaxes(A, -1, -2), np.eye(3)
+    L[..., 3:6, 3:6], L[..., 3:6, 9:12] = -R12t, R12t
+    L[..., 3, 1], L[..., 3, 2], L[..., 4, 0] = -a[..., 2], a[..., 1], a[..., 2]
+    L[..., 4, 2], L[..., 5, 0], L[..., 5, 1] = -a[..., 0], -a[..., 1], a[..., 0]
+    return e**2 / np.diagonal(L @ Sigma @ np.swapaxes(L, -1, -2), axis1=-2, axis2=-1)
+
+
 def perturbed(R12, t12, R13, t13, delta: np.ndarray) -> tuple[np.ndarray, ...]:
     """The six relative poses (R12, t12, R13, t13, R23, t23; Eq. 21) of ``D`` estimates whose errors
     are delta (D, 12) (pose_error's convention) about the true (R12, t12, R13, t13)."""
@@ -219,7 +238,7 @@ def measure(seeds, n_drives: int, sigma: float, sim: dict, every: int, draws: in
     """NEES of the filter's relative-pose covariance at its updates and the pooled information
     ratios of one update without and with the pose uncertainty (module docstring)."""
     rng = np.random.default_rng(seed)
-    nees, claimed, axes, updates = [], [], [], []
+    nees, claimed, axes, predicted, updates = [], [], [], [], []
     for s in seeds:
         for i in range(n_drives):
             camera, ((drive, _, res), (clean, prep, res0)) = drive_updates(s, i, sigma, sim, filter_options)
@@ -234,6 +253,7 @@ def measure(seeds, n_drives: int, sigma: float, sim: dict, every: int, draws: in
             nees.append(np.einsum("ki,ki->k", e, np.linalg.solve(Sig, e[..., None])[..., 0]) / D12)
             claimed.append(np.sqrt(np.diagonal(Sig, axis1=1, axis2=2)))
             axes.append(e**2 / np.diagonal(Sig, axis1=1, axis2=2))
+            predicted.append(prediction_error(est, true, Sig))
             cal = (camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0])
             for k in frames[::every]:
                 j = prep.triplet_of_frame[k]
@@ -244,7 +264,7 @@ def measure(seeds, n_drives: int, sigma: float, sim: dict, every: int, draws: in
                 pt = relative_poses(clean.truth.R_world_imu[t_idx], clean.truth.p_world_imu_m[t_idx], Rci, pic)
                 updates.append((prep.uv_px[j][feats], pt, res.pose_cov[0, k], cal))
     out = {"nees": np.concatenate(nees), "claimed_sd": np.concatenate(claimed), "updates": len(updates),
-           "nees_axes": np.concatenate(axes).mean(axis=0)}
+           "nees_axes": np.concatenate(axes).mean(axis=0), "nees23_axes": np.concatenate(predicted).mean(axis=0)}
     # the rows: exact poses and S = R; poses from Sigma (a consistent filter); poses with the filter's
     # measured error per axis (Sigma scaled by each axis's NEES), each scored with S = R + J Sigma J^T
     for key, kappa in (("exact", None), ("consistent", np.ones(D12)), ("measured", out["nees_axes"])):
@@ -364,9 +384,10 @@ def main(argv=None) -> None:
                   f"{row(m['measured_ratio'])} | {row(m['exact_t'], '{:+.1f}')} | {row(m['consistent_t'], '{:+.1f}')} |",
                   flush=True)
             per_axis.append(f"| {sigma:g} | " + " | ".join(row(m["nees_axes"][a:a + 3], "{:.2f}") for a in range(0, 12, 3))
-                            + " |")
-        print("\nper axis (e_i^2 / Sigma_ii, camera 1's x right, y down, z forward):\n\n| σ (px) | ψ12 | dt12 | ψ13 | dt13 |\n"
-              "|---|---|---|---|---|\n" + "\n".join(per_axis))
+                            + " | " + " | ".join(row(m["nees23_axes"][a:a + 3], "{:.2f}") for a in (0, 3)) + " |")
+        print("\nper axis (e_i^2 / Sigma_ii, camera 1's x right, y down, z forward; 2-3: clone k-1 to the predicted "
+              "frame k):\n\n| σ (px) | ψ12 | dt12 | ψ13 | dt13 | ψ23 | dt23 |\n|---|---|---|---|---|---|---|\n"
+              + "\n".join(per_axis))
     if args.part in ("scores", "both"):
         print(f"\n{DRIVE}, sim {sim}, filter {args.filter or 'default'}; cameras {args.score_seeds} x {args.score_drives} fresh drives: each update's "
               "score at the truth, total (the filter re-run at each calibration) and partial (about the truth run's "

@@ -22,6 +22,11 @@ def test_an_imu_frame_rotation_error_is_recovered_on_its_axis_and_normalised(loa
     # the same rotation applied on the world side is not an IMU-frame yaw error
     world = module.normalised_errors(p_true, Rotation.from_rotvec(dtheta).as_matrix() @ R_true, p_true, R_true, sigma)
     assert np.abs(world[:, 3:5]).max() > 0.1
+    # the velocity, when given, normalised by its own sigmas (the error state's 7th-9th)
+    sigma[:, 6:9] = 0.1
+    v = rng.standard_normal((N, 3))
+    e2v = module.normalised_errors(p_true, R_true, p_true, R_true, sigma, v + np.array([0.0, 0.2, 0.0]), v)
+    np.testing.assert_allclose(e2v, np.tile([0, 0, 0, 0, 0, 0, 0, 4.0, 0], (N, 1)), atol=1e-9)
 
 
 def test_the_report_averages_each_slice_over_drives_and_frames(load_script):

@@ -77,3 +77,17 @@ def test_the_rescored_update_is_the_kernels_own(load_script):
         assert out[key + "_g"].shape == (len(out["frames"]), 3) and np.all(np.isfinite(out[key + "_h"]))
     # the calibration's reach through the estimate: the two scores differ
     assert np.abs(out["total_g"] - out["partial_g"]).max() > 1e-3
+
+
+def test_the_one_frame_prediction_error_is_consistent_when_the_relative_poses_are(load_script):
+    module = load_script("pose_linearisation")
+    rng = np.random.default_rng(2)
+    R12, R13 = Rotation.from_rotvec([[0.01, -0.03, 0.0], [0.02, -0.06, 0.01]]).as_matrix()
+    t12, t13 = np.array([0.05, -0.01, 0.69]), np.array([0.11, -0.02, 1.38])
+    A = rng.standard_normal((12, 12))
+    Sigma = (A @ A.T / 12 + np.eye(12)) * 1e-6
+    delta = rng.multivariate_normal(np.zeros(12), Sigma, size=4000)
+    est = module.perturbed(R12, t12, R13, t13, delta)[:4]
+    true = tuple(np.broadcast_to(x, y.shape) for x, y in zip((R12, t12, R13, t13), est))
+    e2 = module.prediction_error(est, true, np.broadcast_to(Sigma, (4000, 12, 12)))
+    np.testing.assert_allclose(e2.mean(axis=0), 1.0, atol=0.12)
