@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 def test_one_update_from_a_consistent_prior_is_consistent_at_small_noise(load_script):
     module = load_script("update_consistency")
     pl = load_script("pose_linearisation")
-    sim = {"imu_noise_on": False, "outlier_fraction": 0}
+    sim = {"imu_noise_on": False, "outlier_fraction": 0, "duration_s": 20.0}
     camera, ((_, _, res), (clean, prep, res0)) = pl.drive_updates(0, 0, 0.1, sim)
     k = int(np.nonzero(res.dof[0] > 0)[0][100])
     j = prep.triplet_of_frame[k]
