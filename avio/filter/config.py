@@ -171,7 +171,8 @@ class FilterResult:
     pose_cov (n, N, 12, 12): the covariance ``Sigma = C P C^T`` of the 12 relative-pose errors
         ``[psi12, dt12, psi13, dt13]`` (rad, m; docs/model.md, Eq. 37) of frame k's trifocal update,
         and update_poses (n, N, 3, 4, 3) the IMU poses it linearised about: frames k-2 and k-1
-        (the clones, at their exposure times) and k (predicted), rows 0-2 R_world_imu and row 3
+        (the clones, at their exposure times) and k (predicted, at the frame time: Eq. 19's time
+        shift is applied after), rows 0-2 R_world_imu and row 3
         p_world_imu (m); only with ``record_used``, zero where no trifocal update ran.
     """
 

@@ -217,12 +217,18 @@ def update_equality(uv_true: np.ndarray, poses_true: tuple, Sigma: np.ndarray, c
     return score_moments(joint_nll(Y, JW, LD, None if kappa is None else Sigma))
 
 
+def _problem(seed: int, sigma: float, filter_options: dict | None) -> Synthetic:
+    """The flat-city problem of camera ``seed`` (its truth and filter settings: imposed decisions,
+    the pixel noise sigma, FilterConfig overrides) whose filter runs the fresh drives."""
+    return Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local",
+                     filter={"outlier_decisions": "reference_all", "pixel_sigma_px": sigma, **(filter_options or {})})
+
+
 def drive_updates(seed: int, index: int, sigma: float, sim: dict, filter_options: dict | None = None):
     """One fresh drive at pixel noise sigma and its noise-free twin, each filtered at the truth with
     the record on: (true calibration, true IMU poses (N, 3, 3) and (N, 3), the noisy run, the
     twin's prepared triplets and run)."""
-    problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local",
-                        filter={"outlier_decisions": "reference_all", "pixel_sigma_px": sigma, **(filter_options or {})})
+    problem = _problem(seed, sigma, filter_options)
     camera = problem.sequence.truth_calibration
     truth = problem.calibration_space.decode(problem.truth[None])
     runs = []
@@ -283,8 +289,7 @@ def drive_scores(seed: int, index: int, sigma: float, sim: dict, filter_options:
     objective); *partial*, the update re-scored at each row about the truth run's own linearisation
     (its recorded poses, Sigma and features held). Also the two reconstructions' largest
     difference at the truth (the partial one re-computes the kernel's update NLL)."""
-    problem = Synthetic(drives=[DRIVE], holdout=None, data_seed=seed, space="local",
-                        filter={"outlier_decisions": "reference_all", "pixel_sigma_px": sigma, **(filter_options or {})})
+    problem = _problem(seed, sigma, filter_options)
     camera = problem.sequence.truth_calibration
     drive = simulate(sim_config({**sim, "pixel_noise_px": sigma}), (seed, FRESH_SEED0 + index), true_calibration=camera)
     cfg = problem.filter_config
