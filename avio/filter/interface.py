@@ -70,7 +70,6 @@ class Settings(NamedTuple):
     zero_velocity_sigma_mps: float  #: zero-velocity pseudo-measurement noise, m/s (Eq. 49); 0: off
     max_variance: float  #: divergence: largest covariance diagonal (Eq. 51)
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
-    first_estimates: bool  #: first-estimate Jacobians (FEJ) in the transition and the chain C
 
 
 class Outputs(NamedTuple):

@@ -209,10 +209,6 @@ def run_filters(lo, hi, seq, cal, cfg, out):
     E, T3, Tq, U = np.empty((3, 3)), np.empty((3, 3)), np.empty((15, 27)), np.empty((15, 15))
     R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
     ba_s, bg_s = np.empty(3), np.empty(3)
-    fej = cfg.first_estimates
-    Rfe, pfe, vfe, cpf, cRf = np.empty((3, 3)), np.empty(3), np.empty(3), np.zeros((2, 3)), np.zeros((2, 3, 3))
-    R3f, p3f, Jshf = np.empty((3, 3)), np.empty(3), np.empty((6, 15))
-    xf = FilterState(R=R_new, p=p_new, v=v_new, ba=ba, bg=bg, cp0=cpf[0], cR0=cRf[0], cp1=cpf[1], cR1=cRf[1], P=P)
     # The predicted state the updates correct: views, so made once.
     x = FilterState(R=R_new, p=p_new, v=v_new, ba=ba, bg=bg, cp0=cp[0], cR0=cR[0], cp1=cp[1], cR1=cR[1], P=P)
     sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))
@@ -228,13 +224,9 @@ def run_filters(lo, hi, seq, cal, cfg, out):
         copy1(bg, seq.bg0)
         cp[:] = 0.0
         cR[:] = 0.0
-        cpf[:] = 0.0
-        cRf[:] = 0.0
         for a in range(3):
             cR[0, a, a] = 1.0
             cR[1, a, a] = 1.0
-            cRf[0, a, a] = 1.0
-            cRf[1, a, a] = 1.0
         _clear_updates(out, i, record)
         frozen = cal.frozen[i]
         out.diverged_at[i] = 0 if frozen else -1
@@ -246,17 +238,11 @@ def run_filters(lo, hi, seq, cal, cfg, out):
             if k > 0:
                 propagate_one(R, v, p, ba, bg, seq.g, seq.dR[k], seq.dv[k], seq.dp[k], seq.S[k], seq.SS[k],
                               seq.Vbg[k], seq.Pbg[k], seq.T_s[k], R_new, v_new, p_new, Phi, pws)
-                if fej:
-                    _first_estimate_transition(Phi, R_new, p_new, v_new, Rfe, pfe, vfe, seq.g, seq.T_s[k], T3)
                 propagate_covariance(P, Phi, seq.Qd[k], Tq, U)
             else:
                 copy2(R_new, R)
                 copy1(v_new, v)
                 copy1(p_new, p)
-            if fej:
-                copy2(Rfe, R_new)
-                copy1(pfe, p_new)
-                copy1(vfe, v_new)
             # omega of the time shift, Eq. (19): the gyro at the frame time minus the bias.
             for a in range(3):
                 omega[a] = seq.gyro_frame[k, a] - bg[a]
@@ -271,7 +257,7 @@ def run_filters(lo, hi, seq, cal, cfg, out):
                 if record:
                     _record_poses(out.update_poses[i, k], x)
                 used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
-                                                              record, decided, xf)
+                                                              record, decided)
                 out.n_updates[i, k], out.n_outliers[i, k] = used, rej
                 out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof
                 out.nll[i, k], out.nll_slots[i, k] = nll, slots
@@ -279,12 +265,6 @@ def run_filters(lo, hi, seq, cal, cfg, out):
                     copy2(out.pose_cov[i, k], uws.update.Sig)
             # Slide (Eq. 50).
             slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)
-            if fej:
-                shifted_pose(Rfe, pfe, vfe, omega, cal.td_s[i], R3f, p3f, Jshf, E)
-                copy1(cpf[0], cpf[1])
-                copy2(cRf[0], cRf[1])
-                copy1(cpf[1], p3f)
-                copy2(cRf[1], R3f)
             # Divergence (Eq. 51): this frame's outputs are those of the last good one.
             if _bad(R_new, p_new, v_new, P, cfg.max_variance, cfg.max_speed_mps):
                 out.diverged_at[i] = k
@@ -303,26 +283,6 @@ def run_filters(lo, hi, seq, cal, cfg, out):
         for k in range(k_stop, N):
             _write_frame(out, i, k, R, p, v, ba, bg)
             copy1(out.sigma[i, k], sig0)
-
-
-@kernel_jit
-def _first_estimate_transition(Phi, R_new, p_new, v_new, Rfe, pfe, vfe, g, T, M):
-    """The rotation columns of Phi at the first estimates (FEJ; Li & Mourikis 2013): the previous
-    frame's predicted pose (Rfe, pfe, vfe) in place of its corrected one, so that Phi maps the
-    unobservable yaw direction at the first estimates onto its image at the prediction."""
-    w1 = np.empty(3)
-    w2 = np.empty(3)
-    for i in range(3):
-        w1[i] = p_new[i] - pfe[i] - vfe[i] * T - 0.5 * g[i] * T * T
-        w2[i] = v_new[i] - vfe[i] - g[i] * T
-    for r0, w in ((0, w1), (6, w2)):
-        for j in range(3):
-            Phi[r0 + 0, 3 + j] = -(-w[2] * Rfe[1, j] + w[1] * Rfe[2, j])
-            Phi[r0 + 1, 3 + j] = -(w[2] * Rfe[0, j] - w[0] * Rfe[2, j])
-            Phi[r0 + 2, 3 + j] = -(-w[1] * Rfe[0, j] + w[0] * Rfe[1, j])
-    for i in range(3):
-        for j in range(3):
-            Phi[3 + i, 3 + j] = R_new[0, i] * Rfe[0, j] + R_new[1, i] * Rfe[1, j] + R_new[2, i] * Rfe[2, j]
 
 
 @kernel_jit

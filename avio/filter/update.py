@@ -144,7 +144,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 
 @kernel_jit
-def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided, xf):
+def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
     covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
     settings ``cfg`` (interface.Settings), the features uv (F, 3, 2) px and valid (F,) of the
@@ -186,20 +186,8 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided, xf):
     Pi = x.P
     # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
     # G4 and the chain C (H = J C).
-    if cfg.first_estimates:
-        # FEJ: the chain C at the clones' first estimates (no features: only C is wanted).
-        measure(x.R, x.p, x.v, xf.cp0, xf.cR0, xf.cp1, xf.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
-                cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv[:0], r4[:, :0], J4[:, :, :0], G4[:, :, :0], C,
-                t12, t13, ws.measure, False)
-        for a in range(d):
-            for b in range(27):
-                CP[a, b] = C[a, b]
     measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
             cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv, r4, J4, G4, C, t12, t13, ws.measure, False)
-    if cfg.first_estimates:
-        for a in range(d):
-            for b in range(27):
-                C[a, b] = CP[a, b]
     # Eq. (36): without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
