@@ -126,7 +126,6 @@ class FilterConfig:
     imu_noise_scale: float = 1.0
     divergence_max_variance: float = 1e6
     divergence_max_speed_mps: float = 100.0
-    eiv_correction: int = 0
 
     @property
     def chi2_threshold(self) -> float:

@@ -13,7 +13,7 @@ import numpy as np
 from avio.filter._linalg import copy2, matmul, so3_exp, solve
 from avio.filter._simd import kernel_jit
 from avio.filter.interface import NoiseWorkspace, OutlierWorkspace, UpdateWorkspace
-from avio.filter.measurement import feature_residuals, measure
+from avio.filter.measurement import measure
 from avio.filter.outliers import (
     cholesky_lanes,
     feature_innovations_into,
@@ -141,73 +141,6 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     cholesky_lanes(Rm, Lm)
     log_det_lanes(Lm, ldR)
 
-
-
-@kernel_jit
-def _eiv_correct(uv, inl, Lm, sigma_px, mws, t12, t13, fx, fy, cx, cy, X, A, information):
-    """Errors-in-variables correction (experiment): the Jacobian J of a feature taken at its noisy
-    pixels correlates with its residual's noise, so the score beta = sum J^T R^-1 r has the mean
-    sigma^2 sum_j (dJ/du_j)^T R^-1 (dr/du_j) at the truth (and A the excess sigma^2 sum_j
-    (dJ/du_j)^T R^-1 (dJ/du_j)); both estimated at the measured pixels by central differences and
-    subtracted from X[:, 12] (beta) and, with ``information``, from the upper triangle of A."""
-    d = 12
-    h = 0.05
-    R12, R13, R23 = mws.R12, mws.R13, mws.R23
-    a12 = (t12[0], t12[1], t12[2])
-    a13 = (t13[0], t13[1], t13[2])
-    e = (t13[0] - t12[0], t13[1] - t12[1], t13[2] - t12[2])
-    a23 = (R12[0, 0] * e[0] + R12[1, 0] * e[1] + R12[2, 0] * e[2],
-           R12[0, 1] * e[0] + R12[1, 1] * e[1] + R12[2, 1] * e[2],
-           R12[0, 2] * e[0] + R12[1, 2] * e[1] + R12[2, 2] * e[2])
-    u2 = np.empty((3, 2))
-    r, J, G = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
-    Jp, Jm = np.empty((4, 12)), np.empty((4, 12))
-    r0, G0 = np.empty(4), np.empty((4, 6))
-    Ju = np.empty((M, d))
-    Jw = np.empty((M, d))
-    gw = np.empty(M)
-    for f in range(uv.shape[0]):
-        if not inl[f]:
-            continue
-        for a in range(3):
-            u2[a, 0], u2[a, 1] = uv[f, a, 0], uv[f, a, 1]
-        feature_residuals(u2, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r0, J, G0, False)
-        for c in range(6):
-            a, b = c // 2, c % 2
-            u2[a, b] = uv[f, a, b] + h
-            feature_residuals(u2, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r, Jp, G, False)
-            u2[a, b] = uv[f, a, b] - h
-            feature_residuals(u2, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r, Jm, G, False)
-            u2[a, b] = uv[f, a, b]
-            for q in range(M):
-                uq = USED_RESIDUALS[q]
-                for k in range(d):
-                    Ju[q, k] = (Jp[uq, k] - Jm[uq, k]) / (2.0 * h)
-            # whiten with the feature's R_f = L L^T (forward substitution)
-            for q in range(M):
-                uq = USED_RESIDUALS[q]
-                acc = G0[uq, c]
-                for k in range(q):
-                    acc -= Lm[q, k, f] * gw[k]
-                gw[q] = acc / Lm[q, q, f]
-                for k in range(d):
-                    acc = Ju[q, k]
-                    for m in range(q):
-                        acc -= Lm[q, m, f] * Jw[m, k]
-                    Jw[q, k] = acc / Lm[q, q, f]
-            s2 = sigma_px * sigma_px
-            for k in range(d):
-                acc = 0.0
-                for q in range(M):
-                    acc += Jw[q, k] * gw[q]
-                X[k, d] -= s2 * acc
-            if information:
-                for k in range(d):
-                    for l in range(k, d):
-                        acc = 0.0
-                        for q in range(M):
-                            acc += Jw[q, k] * Jw[q, l]
-                        A[k, l] -= s2 * acc
 
 
 @kernel_jit
@@ -374,9 +307,6 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
                     X[b, d] += jb * rwa
                     for c in range(b, d):
                         A[b, c] += jb * jw_f[a, c]
-    if cfg.eiv_correction > 0:
-        _eiv_correct(uv, inl, Lm, sigma_px, ws.measure, t12, t13, cal.fx[i], cal.fy[i], cal.cx[i], cal.cy[i], X, A,
-                     cfg.eiv_correction == 2)
     for b in range(d):
         beta[b] = X[b, d]
         for c in range(b):

@@ -75,7 +75,7 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
                            frozen=np.zeros(1, np.bool_))
         cfg = Settings(sigma_px=sigma, max_transfer_gain=np.inf, min_parallax_m=0.0, mode=MODE_NONE,
                        ransac_threshold_sigma=3.0, chi2_threshold=11.34, zero_velocity_sigma_mps=0.0,
-                       max_variance=np.inf, max_speed_mps=np.inf, eiv_correction=0)
+                       max_variance=np.inf, max_speed_mps=np.inf)
         ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                               outliers=outlier_workspace(F))
         used, rejected, nis, lds, dof, _, slots = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg, ws,
