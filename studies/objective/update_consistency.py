@@ -14,6 +14,7 @@ pixels (as the filter does) or at the true ones (its weights then independent of
 weight).
 
     python studies/objective/update_consistency.py [--sigmas 0.35 0.7 1.0] [--seeds 0 1] [--every 10] [--draws 200]
+        [--filter JSON]
 
 About a minute per pixel noise.
 """
@@ -21,6 +22,7 @@ About a minute per pixel noise.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -56,13 +58,15 @@ def posterior_nees(uv_true: np.ndarray, poses_true: tuple, Sigma: np.ndarray, ca
     return ((e0 - delta) ** 2 / np.diagonal(post, axis1=1, axis2=2)).mean(axis=0)
 
 
-def measure(seeds, sigma: float, sim: dict, every: int, draws: int, seed: int = 0) -> dict:
+def measure(seeds, sigma: float, sim: dict, every: int, draws: int, seed: int = 0,
+            filter_options: dict | None = None) -> dict:
     """Per noise-model variant ("measured", "true" pixels) the (12,) posterior NEES per axis over
-    every ``every``-th update of one fresh drive per camera in seeds."""
+    every ``every``-th update of one fresh drive per camera in seeds (the filter with FilterConfig
+    overrides filter_options gives each update's Sigma)."""
     rng = np.random.default_rng(seed)
     out = {"measured": [], "true": []}
     for s in seeds:
-        camera, ((_, _, res), (clean, prep, res0)) = drive_updates(s, 0, sigma, sim)
+        camera, ((_, _, res), (clean, prep, res0)) = drive_updates(s, 0, sigma, sim, filter_options)
         Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
         cal = (camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0])
         for k in np.nonzero(res.dof[0] > 0)[0][::every]:
@@ -84,13 +88,16 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="cameras (one fresh drive each)")
     parser.add_argument("--every", type=int, default=10, help="every n-th update frame")
     parser.add_argument("--draws", type=int, default=200, help="draws per update")
+    parser.add_argument("--filter", type=json.loads, default=None,
+                        help='FilterConfig overrides as JSON, e.g. \'{"imu_noise_scale": 0.1}\' (a tighter prior Sigma)')
     args = parser.parse_args(argv)
     sim = {"imu_noise_on": False, "outlier_fraction": 0}
-    print(f"exact IMU, no outliers; cameras {args.seeds}, every {args.every}th update, {args.draws} draws: the "
+    print(f"exact IMU, no outliers; filter {args.filter or 'default'}; cameras {args.seeds}, every {args.every}th "
+          f"update, {args.draws} draws: the "
           "posterior NEES per axis after one update from a consistent prior (camera 1's x right, y down, z forward)")
     print("| σ (px) | R_f at | " + " | ".join(AXES) + " |\n|---|---|---|---|---|---|")
     for sigma in args.sigmas:
-        m = measure(args.seeds, sigma, sim, args.every, args.draws)
+        m = measure(args.seeds, sigma, sim, args.every, args.draws, filter_options=args.filter)
         for key, v in m.items():
             print(f"| {sigma:g} | {key} pixels | " + " | ".join(", ".join(f"{x:.2f}" for x in v[a:a + 3])
                                                              for a in range(0, 12, 3)) + " |", flush=True)
