@@ -239,6 +239,20 @@ def drive_updates(seed: int, index: int, sigma: float, sim: dict, filter_options
     return camera, runs
 
 
+def sampled_updates(frames: np.ndarray, camera, clean, prep, res0):
+    """For each update frame k in ``frames`` whose triplet the truth run res0 (on the noise-free twin
+    ``clean``, its prepared triplets prep) updated with at least 3 features: (k, the features'
+    noise-free pixels (F, 3, 2), the true (R12, t12, R13, t13) of the triplet)."""
+    Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
+    for k in frames:
+        j = prep.triplet_of_frame[k]
+        feats = prep.valid[j] & res0.used[0, j]
+        if j < 0 or feats.sum() < 3:
+            continue
+        t = k + np.array([-2, -1, 0])
+        yield k, prep.uv_px[j][feats], relative_poses(clean.truth.R_world_imu[t], clean.truth.p_world_imu_m[t], Rci, pic)
+
+
 def measure(seeds, n_drives: int, sigma: float, sim: dict, every: int, draws: int, seed: int = 0,
             filter_options: dict | None = None) -> dict:
     """NEES of the filter's relative-pose covariance at its updates and the pooled information

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
 from feature_information import USED
-from pose_linearisation import D12, M, _whitened, drive_updates, perturbed, relative_poses
+from pose_linearisation import D12, M, _whitened, drive_updates, perturbed, sampled_updates
 
 SIM = {"imu_noise_on": False, "outlier_fraction": 0}
 
@@ -65,17 +65,10 @@ def measure(sigma: float, draws: int, every: int, jacobian_at_true: bool, seeds=
     z, by_direction, cosines = [], [], []
     for s in seeds:
         camera, ((_, _, res), (clean, prep, res0)) = drive_updates(s, 0, sigma, SIM)
-        Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
         cal = np.array([[camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0]]])
         previous = None
-        for k in np.nonzero(res0.dof[0] > 0)[0][::every]:
-            j = prep.triplet_of_frame[k]
-            feats = prep.valid[j] & res0.used[0, j]
-            if feats.sum() < 3:
-                continue
-            t = k + np.array([-2, -1, 0])
-            true = relative_poses(clean.truth.R_world_imu[t], clean.truth.p_world_imu_m[t], Rci, pic)
-            b, V, A = update_bias(prep.uv_px[j][feats], true, cal, sigma, draws, rng, jacobian_at_true)
+        for _, uv, true in sampled_updates(np.nonzero(res0.dof[0] > 0)[0][::every], camera, clean, prep, res0):
+            b, V, A = update_bias(uv, true, cal, sigma, draws, rng, jacobian_at_true)
             Ap = np.linalg.pinv(A, rcond=1e-8, hermitian=True)
             z.append(b @ Ap @ b - np.trace(Ap @ V))
             lam, U = np.linalg.eigh(A)

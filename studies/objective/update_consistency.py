@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
 from feature_information import USED
-from pose_linearisation import D12, M, _whitened, drive_updates, perturbed, relative_poses
+from pose_linearisation import D12, M, _whitened, drive_updates, perturbed, sampled_updates
 
 AXES = ("ψ12", "dt12", "ψ13", "dt13")
 
@@ -67,17 +67,10 @@ def measure(seeds, sigma: float, sim: dict, every: int, draws: int, seed: int = 
     out = {"measured": [], "true": []}
     for s in seeds:
         camera, ((_, _, res), (clean, prep, res0)) = drive_updates(s, 0, sigma, sim, filter_options)
-        Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
         cal = (camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0])
-        for k in np.nonzero(res.dof[0] > 0)[0][::every]:
-            j = prep.triplet_of_frame[k]
-            feats = prep.valid[j] & res0.used[0, j]
-            if feats.sum() < 3:
-                continue
-            t = k + np.array([-2, -1, 0])
-            true = relative_poses(clean.truth.R_world_imu[t], clean.truth.p_world_imu_m[t], Rci, pic)
+        for k, uv, true in sampled_updates(np.nonzero(res.dof[0] > 0)[0][::every], camera, clean, prep, res0):
             for key in out:
-                out[key].append(posterior_nees(prep.uv_px[j][feats], true, res.pose_cov[0, k], cal, sigma, draws, rng,
+                out[key].append(posterior_nees(uv, true, res.pose_cov[0, k], cal, sigma, draws, rng,
                                                key == "true"))
     return {key: np.mean(v, axis=0) for key, v in out.items()}
 
