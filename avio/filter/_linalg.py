@@ -1,6 +1,6 @@
 """Small dense linear algebra and rotations compiled with numba (``cache=True``, no fastmath),
 for the per-filter kernels of the VIO filter (avio/filter/kernels.py, update.py, measurement.py,
-outliers.py, propagation.py).
+outliers.py, propagation.py), and the least-norm pixel correction of one feature (Eq. 35a).
 
 Hand-written because the matrices are 3x3 to 27x27: a LAPACK/BLAS call or a numpy call per
 matrix costs more than the arithmetic.
@@ -97,3 +97,44 @@ def solve(A, B):
         inv = 1.0 / A[c, c]
         for j in range(k):
             B[c, j] *= inv
+
+
+@kernel_jit(inline="always")
+def dot6(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
+
+
+@kernel_jit
+def corrected_pixels(uv, r, G, out):
+    """A feature's pixels moved to satisfy its used residuals (0, 2, 3) to first order, the
+    least-norm step ``u - G^T (G G^T)^-1 r`` (Sampson's correction, docs/model.md, Eq. 35a;
+    avio.filter.measurement.measure), into out (3, 2) px.
+    uv (3, 2) the measured pixels, r (4,) their innovations, G (4, 6) ``dr/d(u1, v1, .., v3)``.
+    Returns False (out unset) where r or G is not finite or ``G G^T`` is not positive definite."""
+    # Hand-written 3x3 Cholesky: np.linalg allocates, and this runs per feature in the kernel.
+    g0, g1, g2 = G[0], G[2], G[3]
+    a00, a01, a02 = dot6(g0, g0), dot6(g0, g1), dot6(g0, g2)
+    a11, a12, a22 = dot6(g1, g1), dot6(g1, g2), dot6(g2, g2)
+    y0, y1, y2 = r[0], r[2], r[3]
+    if not (np.isfinite(a00 + a01 + a02 + a11 + a12 + a22) and np.isfinite(y0 + y1 + y2)) or a00 <= 0.0:
+        return False
+    l00 = np.sqrt(a00)
+    l10, l20 = a01 / l00, a02 / l00
+    d1 = a11 - l10 * l10
+    if d1 <= 1e-12 * a11:
+        return False
+    l11 = np.sqrt(d1)
+    l21 = (a12 - l20 * l10) / l11
+    d2 = a22 - l20 * l20 - l21 * l21
+    if d2 <= 1e-12 * a22:
+        return False
+    l22 = np.sqrt(d2)
+    z0 = y0 / l00
+    z1 = (y1 - l10 * z0) / l11
+    z2 = (y2 - l20 * z0 - l21 * z1) / l22
+    w2 = z2 / l22
+    w1 = (z1 - l21 * w2) / l11
+    w0 = (z0 - l10 * w1 - l20 * w2) / l00
+    for c in range(6):
+        out[c // 2, c % 2] = uv[c // 2, c % 2] - (g0[c] * w0 + g1[c] * w1 + g2[c] * w2)
+    return True

@@ -259,7 +259,8 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
                         min_parallax_m=float(min_parallax_m), mode=_MODES[c.outlier_rejection],
                         ransac_threshold_sigma=float(c.ransac_threshold_sigma), chi2_threshold=c.chi2_threshold,
                         zero_velocity_sigma_mps=float(c.zero_velocity_sigma_mps),
-                        max_variance=float(c.divergence_max_variance), max_speed_mps=float(c.divergence_max_speed_mps))
+                        max_variance=float(c.divergence_max_variance), max_speed_mps=float(c.divergence_max_speed_mps),
+                        corrected_jacobian=c.jacobian_pixels == "corrected")
     out = _outputs(n, N, (n if record_used else 0, *prep.valid.shape))
     # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
     # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per

@@ -70,6 +70,7 @@ class Settings(NamedTuple):
     zero_velocity_sigma_mps: float  #: zero-velocity pseudo-measurement noise, m/s (Eq. 49); 0: off
     max_variance: float  #: divergence: largest covariance diagonal (Eq. 51)
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
+    corrected_jacobian: bool  #: J_f and G_f at the corrected pixels (Eq. 35a), else at the measured ones
 
 
 class Outputs(NamedTuple):
@@ -180,6 +181,8 @@ class MeasureWorkspace(NamedTuple):
     R23: np.ndarray  #: (3, 3)
     D: np.ndarray  #: (12, 18) camera pose errors -> relative-pose errors
     E: np.ndarray  #: (3, 3)
+    uc: np.ndarray  #: (3, 2) a feature's corrected pixels (Eq. 35a), px
+    rc: np.ndarray  #: (4,) the residuals at them (not used)
 
 
 class PropagateWorkspace(NamedTuple):

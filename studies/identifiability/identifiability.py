@@ -68,6 +68,8 @@ def load(folder: Path) -> pd.DataFrame:
                      "drives": len(params["drives"]), "rig": params["drives"][0], "noise_realisations": params.get("noise_realisations", 1),
                      "free": len(record["best_x"]), "seed": record["seed"],
                      "decisions": decisions(record),
+                     # where each feature's Jacobian is taken (FilterConfig.jacobian_pixels; issue 33)
+                     "jacobian": (params.get("filter") or {}).get("jacobian_pixels", "measured"),
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
                      "evals": record["n_evals"], "best_f": record["best_f"], "f_truth": record["f_truth"],
                      **{k: record["best_metrics"][k] for k in ERRORS}})
@@ -122,6 +124,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         first = g.iloc[0]
         row = {"objective": first.objective, "drives": first.drives, "noise_realisations": first.noise_realisations,
                "free": first.free, "evals": int(g.evals.median()), "seeds": len(g), "decisions": first.decisions,
+               "jacobian": first.get("jacobian", "measured"),
                "rig": first.get("rig", "paper_540m")}  # the drive preset (full3d_540m: the excited rig)
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
@@ -150,8 +153,9 @@ def ordered(summary: pd.DataFrame) -> pd.DataFrame:
     """Rows by objective (the paper's first), drives, noise realisations, free variables (most
     first), budget, seeds and outlier decisions (the filters' own first): the order of the table and the figure."""
     rank = [OBJECTIVE_ORDER.index(o) if o in OBJECTIVE_ORDER else len(OBJECTIVE_ORDER) for o in summary.objective]
-    keys = summary.assign(_o=rank, _f=-summary.free, _d=summary.decisions != "own")
-    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d"], kind="stable")
+    keys = summary.assign(_o=rank, _f=-summary.free, _d=summary.decisions != "own",
+                          _j=summary.get("jacobian", "measured") != "measured")
+    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d", "_j"], kind="stable")
     return summary.loc[keys.index].reset_index(drop=True)
 
 
@@ -165,6 +169,7 @@ def markdown(summary: pd.DataFrame) -> str:
         rig = getattr(r, "rig", "paper_540m")
         drives += f" {rig}" if rig != "paper_540m" else ""
         objective = r.objective + (f" ({r.decisions} decisions)" if r.decisions != "own" else "")
+        objective += ", Jacobian at corrected pixels" if getattr(r, "jacobian", "measured") != "measured" else ""
         lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
@@ -183,6 +188,7 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
               + (f", {r.evals} ev" if budgets else "") + (f", {r.seeds} seeds" if r.seeds != usual else "")
               + (f", {r.decisions} dec" if r.decisions != "own" else "")
+              + (", corr. J" if getattr(r, "jacobian", "measured") != "measured" else "")
               for r in summary.itertuples()]
     fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",

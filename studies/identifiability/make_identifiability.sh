@@ -20,7 +20,8 @@
 # the last per-filter decisions, which left jumps along dx), and the likelihood's own- and
 # reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
 # hold over twenty?), and (issue 33) the joint likelihood's 4-drive, 7-free one and the excited
-# rig's rows (suffixes _full3d, _td). Then the summary table and figure
+# rig's rows (suffixes _full3d, _td), and the joint likelihood with each feature's Jacobian at its
+# corrected pixels (suffix _corrected). Then the summary table and figure
 # (studies/identifiability/identifiability.py).
 #   bash studies/identifiability/make_identifiability.sh [--seeds K] [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -63,6 +64,10 @@ for objective in position_rmse innovation_nll innovation_nll_joint; do
     for td in "" _td; do all+=("${objective}_${drives}drive_10free_full3d${td}${decide}_1600evals_10seeds"); done
   done
 done
+# issue 33: each feature's Jacobian at its corrected pixels (suffix _corrected, docs/model.md Eq. 35a): the joint
+# likelihood, 4 drives, on the flat city (7 free) and the excited rig (10 free)
+all+=(innovation_nll_joint_fourdrive_7free_refall_corrected_1600evals_10seeds
+      innovation_nll_joint_fourdrive_10free_full3d_refall_corrected_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -72,8 +77,10 @@ for name in "$@"; do
   if [[ $base =~ _([0-9]+)evals$ ]]; then budget=${BASH_REMATCH[1]}; base=${base%_*evals}; fi
   # a likelihood's default decisions are reference_all (bench/problems/vio.py): a configuration without a
   # decisions suffix means the filters' own, so it says so
-  decisions=('problem.params.filter={outlier_decisions: own}'); [[ $base == *_refdecisions ]] && { decisions=('problem.params.filter={outlier_decisions: reference}'); base=${base%_refdecisions}; }
-  [[ $base == *_refall ]] && { decisions=('problem.params.filter={outlier_decisions: reference_all}'); base=${base%_refall}; }
+  # suffix _corrected: each feature's Jacobian at its corrected pixels (FilterConfig.jacobian_pixels, issue 33)
+  jac=""; [[ $base == *_corrected ]] && { jac=", jacobian_pixels: corrected"; base=${base%_corrected}; }
+  decisions=("problem.params.filter={outlier_decisions: own$jac}"); [[ $base == *_refdecisions ]] && { decisions=("problem.params.filter={outlier_decisions: reference$jac}"); base=${base%_refdecisions}; }
+  [[ $base == *_refall ]] && { decisions=("problem.params.filter={outlier_decisions: reference_all$jac}"); base=${base%_refall}; }
   preset=paper_540m; timing=()
   [[ $base == *_td ]] && { timing=(problem.params.with_time_offset=true); base=${base%_td}; }
   [[ $base == *_full3d ]] && { preset=full3d_540m; base=${base%_full3d}; }

@@ -174,6 +174,8 @@ def test_missing_tracks_is_an_error(noiseless):
 def test_bad_outlier_mode_is_an_error():
     with pytest.raises(FilterError, match="outlier_rejection"):
         FilterConfig(outlier_rejection="magic")
+    with pytest.raises(FilterError, match=r"jacobian_pixels must be one of \('measured', 'corrected'\), got 'true'"):
+        FilterConfig(jacobian_pixels="true")
 
 
 def test_noiseless_simulated_city_drive_tracks_truth():

@@ -1,11 +1,13 @@
 """The update's joint innovation statistics (docs/model.md, Eqs. 44-45, which the joint likelihood
 avio.objectives.innovation_nll_joint sums, Eq. 55a) against the dense stacked innovation
-covariance ``S = H P H^T + R`` formed explicitly."""
+covariance ``S = H P H^T + R`` formed explicitly; and the update's score at the true pose with each
+feature's Jacobian at its measured or its corrected pixels (FilterConfig.jacobian_pixels, Eq. 35a)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from avio.filter._linalg import corrected_pixels
 from avio.filter.interface import Calibrations, FilterState, Settings, UpdateWorkspaces
 from avio.filter.measurement import measure, measure_workspace
 from avio.filter.update import (
@@ -42,6 +44,17 @@ def _scene(rng, F=12, noise_px=0.7):
     return Rs, ps, P, uv
 
 
+def _measured(Rs, ps, uv, corrected=False):
+    """The measurement (r4 (4, F), J4 (4, 12, F), G4 (4, 6, F)) of features uv (F, 3, 2) px from the
+    poses, the Jacobians at the measured or the corrected pixels."""
+    F = uv.shape[0]
+    r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
+    C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
+    measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, corrected)
+    return r4, J4, G4
+
+
 def _dense(Rs, ps, P, uv, sigma_px):
     """NIS and log det S of all features from the explicit (3F, 3F) S = H P H^T + R."""
     F = uv.shape[0]
@@ -75,7 +88,7 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
                            frozen=np.zeros(1, np.bool_))
         cfg = Settings(sigma_px=sigma, max_transfer_gain=np.inf, min_parallax_m=0.0, mode=MODE_NONE,
                        ransac_threshold_sigma=3.0, chi2_threshold=11.34, zero_velocity_sigma_mps=0.0,
-                       max_variance=np.inf, max_speed_mps=np.inf)
+                       max_variance=np.inf, max_speed_mps=np.inf, corrected_jacobian=False)
         ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                               outliers=outlier_workspace(F))
         used, rejected, nis, lds, dof, _, slots = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg, ws,
@@ -84,3 +97,52 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
         assert nis > 1.0
         np.testing.assert_allclose(nis, nis_d, rtol=1e-7)
         np.testing.assert_allclose(lds, lds_d, rtol=1e-9, atol=1e-8)
+
+
+def test_corrected_pixels_satisfy_the_used_residuals_to_first_order():
+    rng = np.random.default_rng(5)
+    Rs, ps, _, clean = _scene(rng, F=16, noise_px=0.0)
+    uv = clean + rng.normal(0, 1.0, clean.shape)
+    r4, _, G4 = _measured(Rs, ps, uv)
+    rows = list(USED_RESIDUALS)
+    uc = np.empty((16, 3, 2))
+    assert all(corrected_pixels(uv[f], r4[:, f], G4[:, :, f], uc[f]) for f in range(16))
+    rc = _measured(Rs, ps, uc)[0]
+    # second order left: a hundredth of the measured residuals
+    assert np.abs(rc[rows]).max() < 0.02 * np.abs(r4[rows]).max()
+    # noise-free pixels at the true poses are left where they are
+    r0, _, G0 = _measured(Rs, ps, clean)
+    u0 = np.empty((3, 2))
+    assert corrected_pixels(clean[0], r0[:, 0], G0[:, :, 0], u0) and np.abs(u0 - clean[0]).max() < 1e-9
+    # a non-finite residual is refused, not corrected
+    assert not corrected_pixels(uv[0], np.full(4, np.nan), G4[:, :, 0], u0)
+
+
+def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0):
+    """Over pixel-noise draws at the true poses: the update's mean score beta (Eq. 40), its
+    chi-square against its sampling covariance (12 dof) and its size in the mean information."""
+    rows = list(USED_RESIDUALS)
+    betas, infos = [], []
+    for _ in range(draws):
+        r4, J4, G4 = _measured(Rs, ps, clean + rng.normal(0, sigma, clean.shape), corrected)
+        beta, A = np.zeros(12), np.zeros((12, 12))
+        for f in range(clean.shape[0]):
+            G, J = G4[rows, :, f], J4[rows, :, f]
+            Ri = np.linalg.inv(sigma ** 2 * (G @ G.T + NOISE_FLOOR ** 2 * np.eye(3)))
+            beta += J.T @ Ri @ r4[rows, f]
+            A += J.T @ Ri @ J
+        betas.append(beta)
+        infos.append(A)
+    b, V = np.mean(betas, axis=0), np.cov(np.array(betas).T) / draws
+    Ap = np.linalg.pinv(np.mean(infos, axis=0), rcond=1e-10, hermitian=True)
+    return b @ np.linalg.solve(V, b), b @ Ap @ b - np.trace(Ap @ V)
+
+
+def test_the_score_at_the_true_pose_loses_its_bias_with_the_jacobian_at_the_corrected_pixels():
+    Rs, ps, _, clean = _scene(np.random.default_rng(1), F=16, noise_px=0.0)
+    chi2_m, z_m = _mean_score(Rs, ps, clean, False, np.random.default_rng(2))
+    chi2_c, z_c = _mean_score(Rs, ps, clean, True, np.random.default_rng(2))
+    # chi2 with 12 dof: 32.9 at 0.999. Measured: errors in variables, J shares the residuals' pixel
+    # noise (217 here); corrected: no bias the 1000 draws can see (10 here)
+    assert chi2_m > 100 and z_m > 0.1
+    assert chi2_c < 32.9 and abs(z_c) < 0.1 * z_m
