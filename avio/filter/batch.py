@@ -180,7 +180,7 @@ def _sequence_inputs(sequence: Sequence, prep: _Prepared, config: FilterConfig) 
     return SequenceInputs(R0=st.R[0], p0=st.p[0], v0=st.v[0], P0=st.P0, ba0=st.ba[0], bg0=st.bg[0],
                           g=_f64(sequence.gravity_world_mps2), dR=pre.dR, dv=pre.dv, dp=pre.dp, S=pre.S, SS=pre.SS,
                           Vbg=pre.Vbg, Pbg=pre.Pbg, T_s=_f64(pre.T_s), gyro_frame=_f64(pre.gyro_frame_radps),
-                          Qd=prep.Qd, triplet_of_frame=prep.triplet_of_frame, uv=prep.uv_px, valid=prep.valid, uv_jac=prep.uv_px if prep.uv_jac is None else prep.uv_jac,
+                          Qd=prep.Qd, triplet_of_frame=prep.triplet_of_frame, uv=prep.uv_px, valid=prep.valid,
                           stationary=prep.stationary)
 
 

@@ -42,7 +42,6 @@ class SequenceInputs(NamedTuple):
     triplet_of_frame: np.ndarray  #: (N,) int64: triplet updated at frame k, -1 for none
     uv: np.ndarray  #: (n_trip, F, 3, 2) pixels of each feature in images 1, 2, 3
     valid: np.ndarray  #: (n_trip, F) bool: the feature is a candidate
-    uv_jac: np.ndarray  #: oracle
     stationary: np.ndarray  #: (N,) bool: standing still at frame k (Eqs. 47-48)
 
 

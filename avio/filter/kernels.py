@@ -256,7 +256,7 @@ def run_filters(lo, hi, seq, cal, cfg, out):
                 decided = out.used[i, j] if record else no_record
                 if record:
                     _record_poses(out.update_poses[i, k], x)
-                used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.uv_jac[j], seq.valid[j], cfg, uws,
+                used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
                                                               record, decided)
                 out.n_updates[i, k], out.n_outliers[i, k] = used, rej
                 out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof

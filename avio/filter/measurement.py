@@ -300,7 +300,7 @@ def measure_workspace():
 
 
 @kernel_jit
-def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, uv_jac, r, J, Gp, C, t12, t13, ws, pair23,
+def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23,
             corrected=False):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
@@ -369,10 +369,6 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
                           pair23)
         if corrected and corrected_pixels(uv[f], r[:, f], Gp[:, :, f], uc):
             feature_residuals(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], Gp[:, :, f], pair23)
-        # the oracle (issue 33, tried): J and Gp at the true pixels uv_jac where they differ from uv
-        if uv_jac[f, 0, 0] != uv[f, 0, 0] or uv_jac[f, 2, 1] != uv[f, 2, 1]:
-            feature_residuals(uv_jac[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], Gp[:, :, f],
-                              pair23)
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)

@@ -24,13 +24,12 @@ class _Prepared:
     valid: np.ndarray  # (n_trip, F)
     Qd: np.ndarray  # (N, 15, 15)
     stationary: np.ndarray  # (N,) bool, standing still at frame k (IMU and images)
-    uv_jac: object = None  # oracle experiment: pixels at which the Jacobian is taken
     #: outlier_decisions="reference": the (n_trip, F) features the reference's updates used, made on first use
     imposed: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 
-def prepare(sequence: Sequence, config: FilterConfig, clean_tracks=None) -> _Prepared:
+def prepare(sequence: Sequence, config: FilterConfig) -> _Prepared:
     """Everything of the filter that does not depend on the calibration (cache it per sequence)."""
     from avio.tracks import bucket_select, rank_in_groups
 
@@ -82,11 +81,7 @@ def prepare(sequence: Sequence, config: FilterConfig, clean_tracks=None) -> _Pre
     # Eq. (17): the discrete process noise of every interval.
     Qd = np.stack([process_noise(T, s * nz.accel_noise, s * nz.gyro_noise, s * nz.accel_bias_walk,
                                  s * nz.gyro_bias_walk) for T in pre.T_s])
-    uv_jac = uv
-    if clean_tracks is not None:
-        uv_jac = uv.copy()
-        uv_jac[trip, slot] = clean_tracks.uv_px[trip, feat]
-    return _Prepared(pre, tof, uv, valid, Qd, stationary, uv_jac)
+    return _Prepared(pre, tof, uv, valid, Qd, stationary)
 
 
 

@@ -144,7 +144,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 
 @kernel_jit
-def update(x, omega, cal, i, uv, uv_jac, valid, cfg, ws, record, decided):
+def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
     covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
     settings ``cfg`` (interface.Settings), the features uv (F, 3, 2) px and valid (F,) of the
@@ -187,7 +187,7 @@ def update(x, omega, cal, i, uv, uv_jac, valid, cfg, ws, record, decided):
     # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
     # G4 and the chain C (H = J C).
     measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
-            cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv, uv_jac, r4, J4, G4, C, t12, t13, ws.measure, False,
+            cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv, r4, J4, G4, C, t12, t13, ws.measure, False,
             cfg.corrected_jacobian)
     # Eq. (36): without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)

@@ -155,9 +155,6 @@ class SimWorld:
     gyro_bias_radps: np.ndarray
 
 
-LAST_UV_TRUE = [None]
-
-
 def truth_calibration(config: SimConfig, rng: np.random.Generator) -> Calibration:
     """The simulated camera's true calibration: the KITTI reference plus ``config``'s error."""
     ref = kitti_2011_10_03_calibration()
@@ -258,10 +255,8 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
         tracks = simulate_tracks(
             trajectory, frame_t, true_cal, landmarks, config.image_size_px, config.pixel_noise_px,
             config.outlier_fraction, config.max_features, rngs["tracks"],
-            noise_per_triplet=config.pixel_noise_per_triplet, return_details=True,
+            noise_per_triplet=config.pixel_noise_per_triplet,
         )
-        tracks, details = tracks
-        LAST_UV_TRUE[0] = details["uv_true_px"]
         arrays += [tracks.frame_index, tracks.uv_px, tracks.valid]
     seed_value = _plain_seed(seed)
     noise_value = None if noise_seed is None else _plain_seed(noise_seed)

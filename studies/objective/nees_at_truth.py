@@ -80,10 +80,6 @@ def relative_pose_nees(res, drive, camera) -> np.ndarray:
     return np.concatenate([clones.mean(axis=0), prediction_error(est, true, Sig).mean(axis=0)])
 
 
-import os
-ORACLE = os.environ.get('ORACLE') == '1'
-
-
 def measure(seeds, n_drives: int, sim: dict | None, filter_options: dict | None
             ) -> tuple[np.ndarray, np.ndarray, int]:
     """Over fresh drives of each seed's camera (the drives of studies/objective/information_equality.py)
@@ -99,16 +95,7 @@ def measure(seeds, n_drives: int, sim: dict | None, filter_options: dict | None
         truth = problem.calibration_space.decode(problem.truth[None])
         for i in range(n_drives):
             drive = simulate(config, (seed, FRESH_SEED0 + i), true_calibration=camera)
-            prep = problem.prepared(drive)
-            if ORACLE:
-                from avio.filter.prepare import prepare
-                import dataclasses
-                import avio.sim.simulator as S
-                clean = dataclasses.replace(drive.tracks, uv_px=S.LAST_UV_TRUE[0])
-                d = np.abs(clean.uv_px - drive.tracks.uv_px)[drive.tracks.valid]
-                print("pixel diff rms", np.sqrt(np.mean(d ** 2)), flush=True)
-                prep = prepare(drive, problem.filter_config, clean_tracks=clean)
-            res = run(drive, truth, problem.filter_config, prepared=prep, record_used=True)
+            res = run(drive, truth, problem.filter_config, prepared=problem.prepared(drive), record_used=True)
             if res.diverged[0]:
                 skipped += 1
                 continue
