@@ -2,6 +2,7 @@
 in one process, and whether they give the same bits (issue 13's A/B of a kernel change).
 
     python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
+                                   [--tree-set KEY=VALUE ...]
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
 evaluation), so two benchmark runs one after the other can differ by 50 % with the same code.
@@ -35,6 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -73,15 +75,16 @@ def module_names(name: str, pkg: Path) -> dict[str, str]:
             "calibration": f"{name}.calibration" if (pkg / "calibration.py").is_file() else f"{name}.sequence"}
 
 
-def _load(name: str, data: Path, n: int):
-    """(filter module, sequence, preparation, calibrations) of package ``name``."""
+def _load(name: str, data: Path, n: int, overrides: dict | None = None):
+    """(filter module, sequence, preparation, calibrations) of package ``name`` (overrides: its
+    FilterConfig's)."""
     names = module_names(name, Path(importlib.import_module(name).__file__).parent)
     filt = importlib.import_module(names["filter"])
     kitti = importlib.import_module(names["kitti00"])
     geometry = importlib.import_module(names["geometry"])
     calibration = importlib.import_module(names["calibration"])
     seq = kitti.load_kitti00(data / "kitti00", 15, 796, seed=0)
-    cfg = filt.FilterConfig()
+    cfg = filt.FilterConfig(**(overrides or {}))
     prep = filt.prepare(seq, cfg)
     rng = np.random.default_rng(n)  # bench_filter.py's _candidates, with this package's classes
     out = seq.truth_calibration.repeat(n)
@@ -113,7 +116,17 @@ def main(argv=None) -> None:
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--data", default=os.environ.get("AVIO_DATA", str(REPO.parent / "shared" / "data")))
+    ap.add_argument("--tree-set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="FilterConfig overrides of the working tree's filter only (the cost of an option "
+                         "against the base's default; the bits then differ), e.g. jacobian_pixels=corrected")
     args = ap.parse_args(argv)
+    tree_set = {}
+    for item in args.tree_set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            print(f"ab_kernel: --tree-set {item!r}: expected KEY=VALUE", file=sys.stderr)
+            raise SystemExit(2)
+        tree_set[key] = yaml.safe_load(value)
     data = Path(args.data)
     if not (data / "kitti00").is_dir():
         print(f"ab_kernel: no KITTI 00 data at {data / 'kitti00'} (--data or AVIO_DATA)", file=sys.stderr)
@@ -121,7 +134,7 @@ def main(argv=None) -> None:
     sys.path.insert(0, str(extract_base(args.base)))
     runs = {}
     for label, name in (("base", "avio_base"), ("tree", "avio")):
-        filt, seq, cfg, prep, cals = _load(name, data, args.batch)
+        filt, seq, cfg, prep, cals = _load(name, data, args.batch, tree_set if label == "tree" else None)
         filt.set_threads(args.threads)
         t = time.perf_counter()
         first = filt.run(seq, cals, cfg, prep)

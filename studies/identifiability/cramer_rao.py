@@ -18,7 +18,7 @@ This is a bound only as far as the joint likelihood is the data's likelihood
 studies/identifiability/minimiser_scatter.py predicts something else: where one objective's
 minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far above this bound.
 
-    python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4]
+    python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4] [--typical]
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000)
 
 def main(argv=None) -> None:
     sys.path.insert(0, str(ROOT / "studies" / "objective"))
-    from information_equality import A7, VARS
+    from information_equality import A7, VARS, typical
     from objective_bias import DRIVE
 
     from bench.problems.synthetic import Synthetic
@@ -86,10 +86,13 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras whose errors are drawn")
     parser.add_argument("--information", choices=["hessian", "opg"], default="hessian",
                         help="the mean Hessian at the truth (default), or the scores' outer product (BHHH)")
+    parser.add_argument("--typical", action="store_true",
+                        help="only the typical drives (information_equality.typical: curvatures within 5 MADs)")
     args = parser.parse_args(argv)
     saved = np.load(args.load)
-    info = (fisher_information(saved["innovation_nll_joint_H"]) if args.information == "hessian"
-            else outer_product_information(saved["innovation_nll_joint_g"]))
+    H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
+    keep = typical(H) if args.typical else np.ones(len(H), bool)
+    info = fisher_information(H[keep]) if args.information == "hessian" else outer_product_information(g[keep])
     rng = np.random.default_rng(0)
     # the file's rig (files saved before --rig: the flat city, 8 measured, 7 free)
     rig = str(saved["rig"]) if "rig" in saved else DRIVE
@@ -97,7 +100,7 @@ def main(argv=None) -> None:
     A = A7 if rig == DRIVE else np.eye(len(measured))
     names = ("f",) + VARS[2:] if rig == DRIVE else measured
     free = "7 free (fy = fx, dy, dz frozen)" if rig == DRIVE else f"all {len(measured)} free"
-    print(f"Fisher information of the joint likelihood per drive ({len(saved['innovation_nll_joint_H'])} "
+    print(f"Fisher information of the joint likelihood per drive ({keep.sum()}{' typical' if args.typical else ''} "
           f"drives, {'mean Hessian' if args.information == 'hessian' else 'outer product of the scores'}); "
           f"{rig}, {free}")
     print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")

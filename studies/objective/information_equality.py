@@ -22,7 +22,12 @@ the per-residual objective times its calibration-free slot count). Reported per 
   the median or negative, and swing the mean Hessian's weak directions), with the per-variable
   ratios ``G_ii / H_ii`` (1 where the equality holds).
 
-    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--save F.npz] [--load F.npz]
+    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--save F.npz] [--load F.npz]
+    python studies/objective/information_equality.py --profile SEED DRIVE VAR [--filter JSON]
+
+``--profile`` follows one drive (camera SEED, fresh drive DRIVE) along one variable, from -1 to
++1 step: each frame's joint term (``½(r^T S^-1 r + log det S)``, nats) against the truth's, for
+the frames that move most (an outlying drive's score: where the likelihood stops being smooth).
 
 About 25 s of CPU per drive (129 calibrations of a 78 s drive) on one thread.
 """
@@ -83,16 +88,17 @@ def rig_vars(rig: str) -> tuple[str, ...]:
     return VARS if rig == DRIVE else VARS10
 
 
-def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE) -> dict:
+def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, filter_options: dict | None = None) -> dict:
     """Per objective (D, p) gradients and (D, p, p) Hessians at the truth, per unit of
-    ``rig_vars(rig)`` (sim: SimConfig overrides of the fresh drives; rig: their preset)."""
+    ``rig_vars(rig)`` (sim: SimConfig overrides of the fresh drives; rig: their preset; filter_options:
+    FilterConfig overrides over the imposed reference_all decisions)."""
     out = {k: {"g": [], "H": []} for k in OBJECTIVES}
     skipped = 0
     names = rig_vars(rig)
     h = np.array([STEP[v] for v in names])
     for seed in seeds:
         problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
-                            filter={"outlier_decisions": "reference_all"})
+                            filter={"outlier_decisions": "reference_all", **(filter_options or {})})
         cols = [problem.space.names.index(v) for v in names]
         X = np.repeat(problem.truth[None], len(design(len(names), h)), axis=0)
         X[:, cols] += design(len(names), h)
@@ -143,6 +149,28 @@ def typical(H: np.ndarray, k: float = 5.0) -> np.ndarray:
     return np.all(np.abs(diag - med) <= k * mad, axis=1)
 
 
+def profile(seed: int, i: int, var: str, rig: str = DRIVE, filter_options: dict | None = None,
+            n: int = 13, worst: int = 3) -> list[str]:
+    """Lines: one drive's total and its ``worst`` frames' joint terms (nats, against the truth's) at
+    n steps of ``var`` over ``[-STEP, +STEP]`` (see the module docstring)."""
+    problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
+                        filter={"outlier_decisions": "reference_all", **(filter_options or {})})
+    steps = np.linspace(-STEP[var], STEP[var], n)
+    X = np.repeat(problem.truth[None], n, axis=0)
+    X[:, problem.space.names.index(var)] += steps
+    drive = simulate(getattr(SimConfig, rig)(), (seed, FRESH_SEED0 + i), true_calibration=problem.sequence.truth_calibration)
+    res = problem.run_filter(problem.calibration_space.decode(X), drive)
+    terms = 0.5 * (res.nis + res.log_det_S)  # (n, N) each frame's joint term without the constant
+    terms = terms - terms[n // 2]
+    jump = np.abs(np.diff(terms, axis=0)).max(axis=0)
+    lines = [f"{rig}, camera {seed}, fresh drive {i}, filter {filter_options or 'default'}: {var} + "
+             + ", ".join(f"{v:+.3g}" for v in steps),
+             "total: " + ", ".join(f"{v:.3g}" for v in terms.sum(axis=1))]
+    for frame in np.argsort(jump)[::-1][:worst]:
+        lines.append(f"frame {frame} ({res.dof[n // 2, frame]} residuals): " + ", ".join(f"{v:.3g}" for v in terms[:, frame]))
+    return lines
+
+
 def report(data: dict, rng, rig: str = DRIVE) -> list[str]:
     """The table's lines: per objective the equality in the rig's free variables (flat city: the 7
     of its rows; full3d: all 10) over all drives and over the typical ones (:func:`typical`), with
@@ -176,25 +204,36 @@ def main(argv=None) -> None:
     parser.add_argument("--drives", type=int, default=10, help="fresh drives per camera")
     parser.add_argument("--sim", type=json.loads, default=None,
                         help='SimConfig overrides of the fresh drives as JSON, e.g. \'{"pixel_noise_per_triplet": true}\'')
+    parser.add_argument("--filter", type=json.loads, default=None,
+                        help='FilterConfig overrides as JSON, e.g. \'{"jacobian_pixels": "corrected"}\'')
     parser.add_argument("--rig", default=DRIVE, choices=[DRIVE, "full3d_540m"],
                         help="the drives' preset: the flat city (8 variables measured, 7 free) or the excited rig (all 10)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
+    parser.add_argument("--profile", nargs=3, metavar=("SEED", "DRIVE", "VAR"),
+                        help="one drive's frame terms along one variable instead (module docstring)")
     args = parser.parse_args(argv)
     set_threads(args.threads)
+    if args.profile:
+        seed, i, var = args.profile
+        if var not in rig_vars(args.rig):
+            parser.error(f"--profile: VAR must be one of {', '.join(rig_vars(args.rig))}, not {var!r}")
+        print("\n".join(profile(int(seed), int(i), var, args.rig, args.filter)))
+        return
     start = time.process_time()
     if args.load:
         saved = np.load(args.load)
         data = {k: {"g": saved[f"{k}_g"], "H": saved[f"{k}_H"]} for k in OBJECTIVES}
         data["skipped"] = int(saved["skipped"])
         args.rig = str(saved["rig"]) if "rig" in saved else DRIVE  # files saved before --rig: the flat city
+        args.filter = json.loads(str(saved["filter"])) if "filter" in saved else None
     else:
-        data = measure(args.seeds, args.drives, args.sim, args.rig)
+        data = measure(args.seeds, args.drives, args.sim, args.rig, args.filter)
     if args.save:
-        np.savez(args.save, skipped=data["skipped"], rig=args.rig, vars=np.array(rig_vars(args.rig)),
+        np.savez(args.save, skipped=data["skipped"], rig=args.rig, filter=json.dumps(args.filter or {}), vars=np.array(rig_vars(args.rig)),
                  **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
-    print(f"{args.rig}, sim {args.sim or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
+    print(f"{args.rig}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
           f"imposed decisions (reference_all), {time.process_time() - start:.0f} s CPU")
     print("\n".join(report(data, np.random.default_rng(0), args.rig)))
 

@@ -69,3 +69,11 @@ def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, ca
     assert counts["lanes 4"][1] == 0 and counts["lanes 4"][0] > 0  # numba's defaults: scalar
     if llvm.get_host_cpu_features().get("avx", False):
         assert counts["lanes 4 +noalias+SLP"][0] == 0 and counts["lanes 4 +noalias+SLP"][1] > 0, counts
+
+
+def test_a_tree_override_without_a_value_is_refused_before_any_work(load_script, capsys):
+    ab = load_script("ab_kernel")
+    with pytest.raises(SystemExit) as stop:
+        ab.main(["--tree-set", "jacobian_pixels"])
+    assert stop.value.code == 2
+    assert "--tree-set 'jacobian_pixels': expected KEY=VALUE" in capsys.readouterr().err

@@ -28,3 +28,21 @@ def test_drives_with_wild_curvatures_are_not_typical(load_script):
     H[7, 1, 1] = -5.0
     keep = module.typical(H)
     assert not keep[3] and not keep[7] and keep.sum() == 28
+
+
+def test_profile_follows_one_drive_along_one_variable(load_script):
+    module = load_script("information_equality")
+    lines = module.profile(0, 0, "fx", n=3, worst=2)
+    assert lines[0].startswith("paper_540m, camera 0, fresh drive 0") and len(lines) == 4
+    total = [float(v) for v in lines[1].removeprefix("total: ").split(", ")]
+    # the truth's own terms are the reference; a 1.5 px step moves a smooth drive's NLL by nats, not 10^5
+    assert total[1] == 0.0 and all(0.0 < abs(v) < 20.0 for v in (total[0], total[2]))
+
+
+def test_profile_refuses_an_unknown_variable(load_script, capsys):
+    module = load_script("information_equality")
+    try:
+        module.main(["--profile", "0", "0", "zz"])
+    except SystemExit as exc:
+        assert exc.code == 2
+    assert "VAR must be one of fx" in capsys.readouterr().err
