@@ -105,11 +105,13 @@ def dot6(a, b):
 
 
 @kernel_jit
-def corrected_pixels(uv, r, G, out):
+def corrected_pixels(uv, r, G, cap, out):
     """A feature's pixels moved to satisfy its used residuals (0, 2, 3) to first order, the
     least-norm step ``u - G^T (G G^T)^-1 r`` (Sampson's correction, docs/model.md, Eq. 35a;
     avio.filter.measurement.measure), into out (3, 2) px.
-    uv (3, 2) the measured pixels, r (4,) their innovations, G (4, 6) ``dr/d(u1, v1, .., v3)``.
+    uv (3, 2) the measured pixels, r (4,) their innovations, G (4, 6) ``dr/d(u1, v1, .., v3)``;
+    cap: the step's largest length, px (a longer one is shortened along itself, Eq. 35b: where
+    ``G G^T`` is nearly singular the first-order step leaves the region where it holds).
     Returns False (out unset) where r or G is not finite or ``G G^T`` is not positive definite."""
     # Hand-written 3x3 Cholesky: np.linalg allocates, and this runs per feature in the kernel.
     g0, g1, g2 = G[0], G[2], G[3]
@@ -135,6 +137,13 @@ def corrected_pixels(uv, r, G, out):
     w2 = z2 / l22
     w1 = (z1 - l21 * w2) / l11
     w0 = (z0 - l10 * w1 - l20 * w2) / l00
+    norm2 = 0.0
     for c in range(6):
-        out[c // 2, c % 2] = uv[c // 2, c % 2] - (g0[c] * w0 + g1[c] * w1 + g2[c] * w2)
+        step = g0[c] * w0 + g1[c] * w1 + g2[c] * w2
+        out[c // 2, c % 2] = step
+        norm2 += step * step
+    # Eq. (35b): continuous in the step, so the likelihood stays continuous in the calibration.
+    scale = 1.0 if norm2 <= cap * cap else cap / np.sqrt(norm2)
+    for c in range(6):
+        out[c // 2, c % 2] = uv[c // 2, c % 2] - scale * out[c // 2, c % 2]
     return True

@@ -44,7 +44,7 @@ import numpy as np
 
 from avio.calibration import Calibration
 from avio.filter import kernels as _kernels
-from avio.filter.config import FilterConfig, FilterError, FilterResult
+from avio.filter.config import CORRECTION_CAP_SIGMAS, FilterConfig, FilterError, FilterResult
 from avio.filter.interface import Calibrations, Outputs, SequenceInputs, Settings
 from avio.filter.prepare import _Prepared, prepare
 from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
@@ -260,7 +260,8 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
                         ransac_threshold_sigma=float(c.ransac_threshold_sigma), chi2_threshold=c.chi2_threshold,
                         zero_velocity_sigma_mps=float(c.zero_velocity_sigma_mps),
                         max_variance=float(c.divergence_max_variance), max_speed_mps=float(c.divergence_max_speed_mps),
-                        corrected_jacobian=c.jacobian_pixels == "corrected")
+                        correction_cap_px=CORRECTION_CAP_SIGMAS * float(c.pixel_sigma_px)
+                        if c.jacobian_pixels == "corrected" else 0.0)
     out = _outputs(n, N, (n if record_used else 0, *prep.valid.shape))
     # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
     # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per

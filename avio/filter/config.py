@@ -34,6 +34,9 @@ OUTLIER_MODES = ("ransac", "mahalanobis", "both", "none")
 DECISION_SOURCES = ("own", "reference", "reference_all")
 #: where the update takes each feature's Jacobian and noise model (FilterConfig.jacobian_pixels)
 JACOBIAN_PIXELS = ("measured", "corrected")
+#: the corrected pixels' longest step, in pixel sigmas (docs/model.md, Eq. 35b): the radius that
+#: holds 99.9 % of a correct feature's step (chi-square, 3 dof: sqrt(16.27) = 4.03)
+CORRECTION_CAP_SIGMAS = 4.0
 
 
 

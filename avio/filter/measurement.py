@@ -301,7 +301,7 @@ def measure_workspace():
 
 @kernel_jit
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23,
-            corrected=False):
+            cap=0.0):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
     noise model, avio.filter.measurement.feature_residuals, which writes one feature's column: features
@@ -314,9 +314,9 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     ``dp_cam = dp - R_world_imu [p_imu_cam]x dtheta``) -> relative-pose errors
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
     -> residuals (:func:`feature_residuals`). ``pair23=False`` leaves residual 1 (the
-    Sampson distance 2-3, which the update does not use) zero. With ``corrected`` each feature's
-    J and Gp are taken again at its corrected pixels (:func:`corrected_pixels`, Eq. 35a; r stays
-    the measured pixels' innovation).
+    Sampson distance 2-3, which the update does not use) zero. With ``cap > 0`` (px) each feature's
+    J and Gp are taken again at its corrected pixels (:func:`corrected_pixels`, Eq. 35a, the step
+    at most ``cap`` long; r stays the measured pixels' innovation).
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
@@ -367,7 +367,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     for f in range(uv.shape[0]):
         feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[:, f], J[:, :, f], Gp[:, :, f],
                           pair23)
-        if corrected and corrected_pixels(uv[f], r[:, f], Gp[:, :, f], uc):
+        if cap > 0.0 and corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
             feature_residuals(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], Gp[:, :, f], pair23)
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):

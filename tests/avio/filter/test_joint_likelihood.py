@@ -44,14 +44,14 @@ def _scene(rng, F=12, noise_px=0.7):
     return Rs, ps, P, uv
 
 
-def _measured(Rs, ps, uv, corrected=False):
+def _measured(Rs, ps, uv, cap=0.0):
     """The measurement (r4 (4, F), J4 (4, 12, F), G4 (4, 6, F)) of features uv (F, 3, 2) px from the
-    poses, the Jacobians at the measured or the corrected pixels."""
+    poses, the Jacobians at the measured pixels (cap 0) or the corrected ones (steps up to cap px)."""
     F = uv.shape[0]
     r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
     measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
-            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, corrected)
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, cap)
     return r4, J4, G4
 
 
@@ -88,7 +88,7 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
                            frozen=np.zeros(1, np.bool_))
         cfg = Settings(sigma_px=sigma, max_transfer_gain=np.inf, min_parallax_m=0.0, mode=MODE_NONE,
                        ransac_threshold_sigma=3.0, chi2_threshold=11.34, zero_velocity_sigma_mps=0.0,
-                       max_variance=np.inf, max_speed_mps=np.inf, corrected_jacobian=False)
+                       max_variance=np.inf, max_speed_mps=np.inf, correction_cap_px=0.0)
         ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                               outliers=outlier_workspace(F))
         used, rejected, nis, lds, dof, _, slots = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg, ws,
@@ -106,16 +106,21 @@ def test_corrected_pixels_satisfy_the_used_residuals_to_first_order():
     r4, _, G4 = _measured(Rs, ps, uv)
     rows = list(USED_RESIDUALS)
     uc = np.empty((16, 3, 2))
-    assert all(corrected_pixels(uv[f], r4[:, f], G4[:, :, f], uc[f]) for f in range(16))
+    assert all(corrected_pixels(uv[f], r4[:, f], G4[:, :, f], np.inf, uc[f]) for f in range(16))
     rc = _measured(Rs, ps, uc)[0]
     # second order left: a hundredth of the measured residuals
     assert np.abs(rc[rows]).max() < 0.02 * np.abs(r4[rows]).max()
     # noise-free pixels at the true poses are left where they are
     r0, _, G0 = _measured(Rs, ps, clean)
     u0 = np.empty((3, 2))
-    assert corrected_pixels(clean[0], r0[:, 0], G0[:, :, 0], u0) and np.abs(u0 - clean[0]).max() < 1e-9
+    assert corrected_pixels(clean[0], r0[:, 0], G0[:, :, 0], np.inf, u0) and np.abs(u0 - clean[0]).max() < 1e-9
     # a non-finite residual is refused, not corrected
-    assert not corrected_pixels(uv[0], np.full(4, np.nan), G4[:, :, 0], u0)
+    assert not corrected_pixels(uv[0], np.full(4, np.nan), G4[:, :, 0], np.inf, u0)
+    # Eq. (35b): a step longer than the cap is shortened along itself to the cap
+    step = uv[1] - uc[1]
+    half = 0.5 * np.linalg.norm(step)
+    assert corrected_pixels(uv[1], r4[:, 1], G4[:, :, 1], half, u0)
+    np.testing.assert_allclose(uv[1] - u0, 0.5 * step, rtol=1e-12, atol=1e-12)
 
 
 def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0):
@@ -124,7 +129,7 @@ def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0):
     rows = list(USED_RESIDUALS)
     betas, infos = [], []
     for _ in range(draws):
-        r4, J4, G4 = _measured(Rs, ps, clean + rng.normal(0, sigma, clean.shape), corrected)
+        r4, J4, G4 = _measured(Rs, ps, clean + rng.normal(0, sigma, clean.shape), 4.0 * sigma if corrected else 0.0)
         beta, A = np.zeros(12), np.zeros((12, 12))
         for f in range(clean.shape[0]):
             G, J = G4[rows, :, f], J4[rows, :, f]
