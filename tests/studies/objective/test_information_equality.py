@@ -46,3 +46,12 @@ def test_profile_refuses_an_unknown_variable(load_script, capsys):
     except SystemExit as exc:
         assert exc.code == 2
     assert "VAR must be one of fx" in capsys.readouterr().err
+
+
+def test_the_corrected_pixels_likelihood_stays_smooth_where_the_uncapped_step_broke_it(load_script):
+    # camera 2, fresh drive 1: with the first-order step uncapped (before Eq. 35b) this drive's NLL
+    # rose by 6e5 nats at cy + 1.5 px (frame 49); capped, it moves by nats, as with the measured pixels
+    module = load_script("information_equality")
+    lines = module.profile(2, 1, "cy", filter_options={"jacobian_pixels": "corrected"}, n=3, worst=1)
+    total = [float(v) for v in lines[1].removeprefix("total: ").split(", ")]
+    assert max(abs(v) for v in total) < 20.0
