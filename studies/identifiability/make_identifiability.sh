@@ -21,7 +21,7 @@
 # reference_all-decision ones and the RMSE's with seeds 0-19 (do the leads seen over ten seeds
 # hold over twenty?), and (issue 33) the joint likelihood's 4-drive, 7-free one and the excited
 # rig's rows (suffixes _full3d, _td), and the joint likelihood with each feature's Jacobian at its
-# corrected pixels (suffix _corrected). Then the summary table and figure
+# corrected pixels (suffix _corrected) and its 16-drive rows with and without. Then the summary table and figure
 # (studies/identifiability/identifiability.py).
 #   bash studies/identifiability/make_identifiability.sh [--seeds K] [evals] [configuration ...]
 # With configuration names (e.g. innovation_nll_sixteendrive_7free) only those are (re-)made and the
@@ -64,10 +64,13 @@ for objective in position_rmse innovation_nll innovation_nll_joint; do
     for td in "" _td; do all+=("${objective}_${drives}drive_10free_full3d${td}${decide}_1600evals_10seeds"); done
   done
 done
-# issue 33: each feature's Jacobian at its corrected pixels (suffix _corrected, docs/model.md Eq. 35a): the joint
-# likelihood, 4 drives, on the flat city (7 free) and the excited rig (10 free)
+# issue 33: each feature's Jacobian at its corrected pixels (suffix _corrected, docs/model.md Eqs. 35a-b): the joint
+# likelihood, 4 drives, on the flat city (7 free) and the excited rig (10 free), and 16 flat-city drives with
+# and without (does removing the fy tilt show where the drives' scatter is smaller?)
 all+=(innovation_nll_joint_fourdrive_7free_refall_corrected_1600evals_10seeds
-      innovation_nll_joint_fourdrive_10free_full3d_refall_corrected_1600evals_10seeds)
+      innovation_nll_joint_fourdrive_10free_full3d_refall_corrected_1600evals_10seeds
+      innovation_nll_joint_sixteendrive_7free_refall_1600evals_10seeds
+      innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
