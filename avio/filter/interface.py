@@ -183,7 +183,6 @@ class MeasureWorkspace(NamedTuple):
     E: np.ndarray  #: (3, 3)
     uc: np.ndarray  #: (3, 2) a feature's corrected pixels (Eq. 35a), px
     rc: np.ndarray  #: (4,) the residuals at them (not used)
-    gc: np.ndarray  #: (4, 6) their pixel sensitivities (not used: R_f stays at the measured pixels, Eq. 35a)
 
 
 class PropagateWorkspace(NamedTuple):

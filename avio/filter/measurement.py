@@ -295,8 +295,7 @@ def measure_workspace():
     return MeasureWorkspace(R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), Rc=np.empty((3, 3, 3)),
                             pc=np.empty((3, 3)), G=np.zeros((18, 27)), M=np.empty((6, 6)), R12=np.empty((3, 3)),
                             R13=np.empty((3, 3)), R23=np.empty((3, 3)), D=np.zeros((12, 18)), E=np.empty((3, 3)),
-                            uc=np.empty((3, 2)), rc=np.empty(4),
-                            gc=np.empty((4, 6)))
+                            uc=np.empty((3, 2)), rc=np.empty(4))
 
 
 
@@ -316,13 +315,13 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
     -> residuals (:func:`feature_residuals`). ``pair23=False`` leaves residual 1 (the
     Sampson distance 2-3, which the update does not use) zero. With ``cap > 0`` (px) each feature's
-    J is taken again at its corrected pixels (:func:`corrected_pixels`, Eqs. 35a-b, the step at
-    most ``cap`` long); r and Gp stay the measured pixels'.
+    J and Gp are taken again at its corrected pixels (:func:`corrected_pixels`, Eq. 35a, the step
+    at most ``cap`` long; r stays the measured pixels' innovation).
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
     R3, p3, Jsh, Rc, pc, G, M, R12, R13 = ws.R3, ws.p3, ws.Jsh, ws.Rc, ws.pc, ws.G, ws.M, ws.R12, ws.R13
-    R23, D, E, uc, rc, gc = ws.R23, ws.D, ws.E, ws.uc, ws.rc, ws.gc
+    R23, D, E, uc, rc = ws.R23, ws.D, ws.E, ws.uc, ws.rc
     # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose
@@ -369,9 +368,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
         feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[:, f], J[:, :, f], Gp[:, :, f],
                           pair23)
         if cap > 0.0 and corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
-            # only J: R_f from the corrected pixels' Gp degenerates where they fall near a singular G
-            # (docs/decisions.md, "corrected pixels"), so Gp stays the measured pixels'
-            feature_residuals(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], gc, pair23)
+            feature_residuals(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], Gp[:, :, f], pair23)
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
