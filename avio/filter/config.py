@@ -83,7 +83,10 @@ class FilterConfig:
         true pixels given the predicted pose (docs/model.md, Eq. 35a). At the measured pixels J_f
         carries the pixel noise that r_f carries, which biases the update's score (errors in
         variables) the same way update after update: with exact IMU data at 1.0 px the clones'
-        lateral NEES is 2.50 against 1.06 corrected (studies/objective/README.md).
+        lateral NEES is 2.50 against ~1 corrected (studies/objective/README.md). The correction's
+        step is capped at CORRECTION_CAP_SIGMAS pixel sigmas (Eq. 35b); on a few drives in 50 the
+        likelihood is still rough where R_f at the corrected pixels is nearly singular
+        (studies/identifiability/README.md), so "measured" stays the default.
     max_transfer_gain: a feature whose transferred point moves more than this many pixels per
         pixel of measurement noise (standard deviations) is a degenerate transfer and is not used;
         at the true poses inliers stay below ~10, degenerate ones reach thousands (Eq. 36).
