@@ -70,7 +70,8 @@ class Settings(NamedTuple):
     zero_velocity_sigma_mps: float  #: zero-velocity pseudo-measurement noise, m/s (Eq. 49); 0: off
     max_variance: float  #: divergence: largest covariance diagonal (Eq. 51)
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
-    correction_cap_px: float  #: J_f and G_f at the corrected pixels (Eq. 35a), the step at most this long, px; 0: measured pixels
+    #: J_f and G_f at the corrected pixels (Eqs. 35a-b), the step at most this long, px; 0: at the measured pixels
+    correction_cap_px: float
 
 
 class Outputs(NamedTuple):
