@@ -88,6 +88,19 @@ def rig_vars(rig: str) -> tuple[str, ...]:
     return VARS if rig == DRIVE else VARS10
 
 
+def reference_all_problem(seed: int, rig: str = DRIVE, filter_options: dict | None = None) -> Synthetic:
+    """Camera ``seed``'s problem on the rig in the local space, with imposed reference_all decisions
+    (filter_options: further FilterConfig overrides)."""
+    return Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
+                     filter={"outlier_decisions": "reference_all", **(filter_options or {})})
+
+
+def fresh_drive(problem: Synthetic, rig: str, seed: int, i: int, sim: dict | None = None):
+    """Fresh drive i of camera ``seed`` (``(seed, FRESH_SEED0 + i)``; sim: SimConfig overrides)."""
+    return simulate(getattr(SimConfig, rig)(**(sim or {})), (seed, FRESH_SEED0 + i),
+                    true_calibration=problem.sequence.truth_calibration)
+
+
 def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, filter_options: dict | None = None) -> dict:
     """Per objective (D, p) gradients and (D, p, p) Hessians at the truth, per unit of
     ``rig_vars(rig)`` (sim: SimConfig overrides of the fresh drives; rig: their preset; filter_options:
@@ -97,15 +110,13 @@ def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, fil
     names = rig_vars(rig)
     h = np.array([STEP[v] for v in names])
     for seed in seeds:
-        problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
-                            filter={"outlier_decisions": "reference_all", **(filter_options or {})})
+        problem = reference_all_problem(seed, rig, filter_options)
         cols = [problem.space.names.index(v) for v in names]
         X = np.repeat(problem.truth[None], len(design(len(names), h)), axis=0)
         X[:, cols] += design(len(names), h)
         batch = problem.calibration_space.decode(X)
-        camera = problem.sequence.truth_calibration
         for i in range(n_drives):
-            drive = simulate(getattr(SimConfig, rig)(**(sim or {})), (seed, FRESH_SEED0 + i), true_calibration=camera)
+            drive = fresh_drive(problem, rig, seed, i, sim)
             totals = drive_totals(problem, batch, drive)
             if totals is None:
                 skipped += 1
@@ -153,13 +164,11 @@ def profile(seed: int, i: int, var: str, rig: str = DRIVE, filter_options: dict 
             n: int = 13, worst: int = 3) -> list[str]:
     """Lines: one drive's total and its ``worst`` frames' joint terms (nats, against the truth's) at
     n steps of ``var`` over ``[-STEP, +STEP]`` (see the module docstring)."""
-    problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local",
-                        filter={"outlier_decisions": "reference_all", **(filter_options or {})})
+    problem = reference_all_problem(seed, rig, filter_options)
     steps = np.linspace(-STEP[var], STEP[var], n)
     X = np.repeat(problem.truth[None], n, axis=0)
     X[:, problem.space.names.index(var)] += steps
-    drive = simulate(getattr(SimConfig, rig)(), (seed, FRESH_SEED0 + i), true_calibration=problem.sequence.truth_calibration)
-    res = problem.run_filter(problem.calibration_space.decode(X), drive)
+    res = problem.run_filter(problem.calibration_space.decode(X), fresh_drive(problem, rig, seed, i))
     terms = 0.5 * (res.nis + res.log_det_S)  # (n, N) each frame's joint term without the constant
     terms = terms - terms[n // 2]
     jump = np.abs(np.diff(terms, axis=0)).max(axis=0)
