@@ -2,7 +2,7 @@
 in one process, and whether they give the same bits (issue 13's A/B of a kernel change).
 
     python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
-                                   [--tree-set KEY=VALUE ...]
+                                   [--set KEY=VALUE ...] [--tree-set KEY=VALUE ...]
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
 evaluation), so two benchmark runs one after the other can differ by 50 % with the same code.
@@ -109,6 +109,18 @@ def same_bits(a, b) -> bool:
     return True
 
 
+def _overrides(flag: str, items: list[str]) -> dict:
+    """KEY=VALUE items as a dict (values parsed as YAML); exit 2 naming the flag on a bad one."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            print(f"ab_kernel: {flag} {item!r}: expected KEY=VALUE", file=sys.stderr)
+            raise SystemExit(2)
+        out[key] = yaml.safe_load(value)
+    return out
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", default="HEAD")
@@ -116,17 +128,14 @@ def main(argv=None) -> None:
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--data", default=os.environ.get("AVIO_DATA", str(REPO.parent / "shared" / "data")))
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="FilterConfig overrides of both filters (a change's bits and speed with an option on), "
+                         "e.g. jacobian_pixels=corrected")
     ap.add_argument("--tree-set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="FilterConfig overrides of the working tree's filter only (the cost of an option "
                          "against the base's default; the bits then differ), e.g. jacobian_pixels=corrected")
     args = ap.parse_args(argv)
-    tree_set = {}
-    for item in args.tree_set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            print(f"ab_kernel: --tree-set {item!r}: expected KEY=VALUE", file=sys.stderr)
-            raise SystemExit(2)
-        tree_set[key] = yaml.safe_load(value)
+    both_set, tree_set = _overrides("--set", args.set), _overrides("--tree-set", args.tree_set)
     data = Path(args.data)
     if not (data / "kitti00").is_dir():
         print(f"ab_kernel: no KITTI 00 data at {data / 'kitti00'} (--data or AVIO_DATA)", file=sys.stderr)
@@ -134,7 +143,7 @@ def main(argv=None) -> None:
     sys.path.insert(0, str(extract_base(args.base)))
     runs = {}
     for label, name in (("base", "avio_base"), ("tree", "avio")):
-        filt, seq, cfg, prep, cals = _load(name, data, args.batch, tree_set if label == "tree" else None)
+        filt, seq, cfg, prep, cals = _load(name, data, args.batch, {**both_set, **(tree_set if label == "tree" else {})})
         filt.set_threads(args.threads)
         t = time.perf_counter()
         first = filt.run(seq, cals, cfg, prep)

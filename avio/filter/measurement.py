@@ -22,12 +22,12 @@ Jacobians are taken with respect to the 12 relative-pose perturbations
 :func:`measure` chains them to the filter's 27-dim error state (Eqs. 20-24).
 
 The per-feature arithmetic is compiled with numba (``cache=True``, no fastmath, so results are
-deterministic): the filter calls :func:`feature_residuals` for every feature of every filter
-of every frame, where numpy's per-call overhead on (n, F, 3) arrays cost more than the maths.
-The helpers of :func:`feature_residuals` are ``inline="always"`` (inlined by numba into it): as
-calls, passing their arrays and tuples cost ~40 % of the measurement's time (issue 13: the
-filter 1.08x faster, same bits, +4 s of first compile; inlining feature_residuals itself into
-the kernel too gained about as much again but cost +20 s of compile, so it stays a call).
+deterministic). The filter's :func:`measure` runs it on LANES features at once
+(:func:`_features_block`): one loop over the features whose body is :func:`_feature_into` with
+every helper ``inline="always"`` and no loop left inside, writing scratch whose rows lie a
+compile-time stride apart, so LLVM vectorises it across the features (issue 30: 3.05 -> 2.0 µs per
+call of :func:`measure` with 16 features, the filter 1.036x, same bits; benchmarks/README.md).
+:func:`feature_residuals` is the same arithmetic for one feature (tests, studies).
 Vectors are passed as 3-tuples (values, no allocation). Shapes: n filters, F features.
 """
 
@@ -99,7 +99,10 @@ def epipolar_sampson(R_ab, t, xa, xb, fx, fy):
     gam = (w[0] * ifx * ifx, w[1] * ify * ify, 0.0)
     eta = (u[0] * ifx * ifx, u[1] * ify * ify, 0.0)
     # Eq. (26): the Sampson distance e / s.
-    s = np.sqrt((w[0] * ifx) ** 2 + (w[1] * ify) ** 2 + (u[0] * ifx) ** 2 + (u[1] * ify) ** 2)
+    # Squares as products: numba's ``** 2`` is a loop (by squaring), which keeps the features' loop
+    # around this (measure) from vectorising; x * x is the same number.
+    wx, wy, ux, uy = w[0] * ifx, w[1] * ify, u[0] * ifx, u[1] * ify
+    s = np.sqrt(wx * wx + wy * wy + ux * ux + uy * uy)
     i_s = 1.0 / s
     r = e * i_s
     # Eqs. (30)-(31): de/dpsi, de/dt and the terms of ds/dpsi, ds/dt.
@@ -129,9 +132,25 @@ def _transfer_grads(y, R12, l_n, w12, x1, x20, x21, a, ia):
 
 
 @kernel_jit(inline="always")
-def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
+def _transfer_row(jp, R13, x1, t13, X, s1_psi, s1_t, s2_psi, s2_t, s2, J, row, S, f):
+    # One row of Eq. (32) into row ``row`` of feature f's J (flat, stride S), from jp, that row of
+    # Jp = d(pixel)/dX.
+    jpr = rot(R13, jp)  # the row of Jp R13^T
+    q1, q2 = dot(jpr, x1), dot(jpr, t13)
+    jx = cross(jp, X)  # the row of Jp [X]x
+    for c in range(3):
+        J[(row * 12 + c) * S + f] = q1 * s1_psi[c] - q2 * s2_psi[c]
+        J[(row * 12 + 3 + c) * S + f] = q1 * s1_t[c] - q2 * s2_t[c]
+        J[(row * 12 + 6 + c) * S + f] = jx[c]
+        J[(row * 12 + 9 + c) * S + f] = -s2 * jpr[c]
+
+
+@kernel_jit(inline="always")
+def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J, S, f):
     """Point transfer 1→3 (pixels) of one feature; writes its Jacobian w.r.t.
-    ``[psi12, dt12, psi13, dt13]`` into J (2, 12) and returns ``(u, v)``.
+    ``[psi12, dt12, psi13, dt13]`` into rows 2-3 of feature f's column of J and returns ``(u, v)``
+    (J: a flat (4 * 12 * S,) array, entry (a, b) of feature f at ``(12 a + b) S + f``, S the feature
+    stride: :func:`_feature_into`).
 
     x1, x2 normalised points in images 1, 2; w12 the epipolar line of x1 in image 2
     (normalised, from :func:`epipolar_sampson`). The perpendicular through m2 is taken in
@@ -155,19 +174,11 @@ def trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J):
     s1_t = (s1_t[0] + lam[0], s1_t[1] + lam[1], s1_t[2] + lam[2])
     s2_psi, s2_t = _transfer_grads(x1, R12, l_n, w12, x1, x20, x21, a, ia)
     iX2 = 1.0 / X[2]
-    fs = (fx, fy)
-    # Eq. (32), one pixel row at a time.
-    for i in range(2):
-        # Row i of Jp = d(pixel_i)/dX: (f iX2 e_i - f X_i iX2^2 e_2).
-        jp = (fs[i] * iX2 if i == 0 else 0.0, fs[i] * iX2 if i == 1 else 0.0, -fs[i] * X[i] * iX2 * iX2)
-        jpr = rot(R13, jp)  # row i of Jp R13^T
-        q1, q2 = dot(jpr, x1), dot(jpr, t13)
-        jx = cross(jp, X)  # row i of Jp [X]x
-        for c in range(3):
-            J[i, c] = q1 * s1_psi[c] - q2 * s2_psi[c]
-            J[i, 3 + c] = q1 * s1_t[c] - q2 * s2_t[c]
-            J[i, 6 + c] = jx[c]
-            J[i, 9 + c] = -s2 * jpr[c]
+    # Eq. (32), one pixel row at a time: row i of Jp = d(pixel_i)/dX, (f iX2 e_i - f X_i iX2^2 e_2).
+    # Written out rather than a loop over the 2 rows: the loop over the features around this
+    # (measure) vectorises only when it contains no loop (LLVM's full unroll stops short of this body).
+    _transfer_row((fx * iX2, 0.0, -fx * X[0] * iX2 * iX2), R13, x1, t13, X, s1_psi, s1_t, s2_psi, s2_t, s2, J, 2, S, f)
+    _transfer_row((0.0, fy * iX2, -fy * X[1] * iX2 * iX2), R13, x1, t13, X, s1_psi, s1_t, s2_psi, s2_t, s2, J, 3, S, f)
     return fx * X[0] * iX2 + cx, fy * X[1] * iX2 + cy
 
 
@@ -184,11 +195,12 @@ def _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy):
 
 
 @kernel_jit(inline="always")
-def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
-    """d(transfer pixel (u, v)) / d(u1, v1, u2, v2) into G (2, 4): how the transferred point
-    moves with the measured points of images 1 and 2 (through x1, the epipolar line w12 of x1
-    and the perpendicular line through x2); the noise amplification of the transfer
-    (docs/model.md, Eq. 34)."""
+def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G, S, f):
+    """-d(transfer pixel (u, v)) / d(u1, v1, u2, v2) into rows 2-3, columns 0-3 of feature f's G
+    (flat, entry (a, c) at ``(6 a + c) S + f``, as J in :func:`trifocal_transfer`): how the
+    transferred point moves with the measured points of images 1 and 2 (through x1, the epipolar
+    line w12 of x1 and the perpendicular line through x2), negated as the residual ``m3 - (u, v)``
+    sees it; the noise amplification of the transfer (docs/model.md, Eq. 34)."""
     a = fx / fy
     ia = 1.0 / a
     w0, w1 = w12[0], w12[1]
@@ -196,17 +208,23 @@ def transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G):
     lam = rot(R12, l_n)
     s1, s2 = dot(lam, t12), dot(lam, x1)
     X = rot_t(R13, _axpy(s1, x1, -s2, t13))
-    for c in range(2):
-        dx1 = (1.0 / fx if c == 0 else 0.0, 1.0 / fy if c == 1 else 0.0, 0.0)
-        dw = rot_t(R12, cross(t12, dx1))
-        dl = (a * dw[1], -dw[0] * ia, -a * x2[0] * dw[1] + x2[1] * dw[0] * ia)
-        du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy)
-        G[0, c], G[1, c] = du, dv
+    # The four columns written out (as in trifocal_transfer: no loop inside the features' loop).
+    _transfer_pix_col(R12, t12, R13, t13, x1, x2, lam, s1, s2, X, (1.0 / fx, 0.0, 0.0), a, ia, fx, fy, G, 0, S, f)
+    _transfer_pix_col(R12, t12, R13, t13, x1, x2, lam, s1, s2, X, (0.0, 1.0 / fy, 0.0), a, ia, fx, fy, G, 1, S, f)
     zero = (0.0, 0.0, 0.0)
-    for c in range(2):
-        dl = (0.0, 0.0, -a * w1 / fx if c == 0 else w0 * ia / fy)
-        du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, zero, dl, fx, fy)
-        G[0, 2 + c], G[1, 2 + c] = du, dv
+    du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, zero, (0.0, 0.0, -a * w1 / fx), fx, fy)
+    G[(2 * 6 + 2) * S + f], G[(3 * 6 + 2) * S + f] = -du, -dv
+    du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, zero, (0.0, 0.0, w0 * ia / fy), fx, fy)
+    G[(2 * 6 + 3) * S + f], G[(3 * 6 + 3) * S + f] = -du, -dv
+
+
+@kernel_jit(inline="always")
+def _transfer_pix_col(R12, t12, R13, t13, x1, x2, lam, s1, s2, X, dx1, a, ia, fx, fy, G, c, S, f):
+    # Column c of transfer_pixel_jacobian for a move dx1 of x1 (normalised): through x1 and w12.
+    dw = rot_t(R12, cross(t12, dx1))
+    dl = (a * dw[1], -dw[0] * ia, -a * x2[0] * dw[1] + x2[1] * dw[0] * ia)
+    du, dv = _transfer_dpix(R12, t12, R13, t13, x1, lam, s1, s2, X, dx1, dl, fx, fy)
+    G[(2 * 6 + c) * S + f], G[(3 * 6 + c) * S + f] = -du, -dv
 
 
 @kernel_jit
@@ -216,7 +234,7 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
     and ``G = dr / d(u1, v1, u2, v2, u3, v3)`` (4, 6), the residuals' sensitivity to the pixel
     measurements: with independent pixel noise of sigma px the residuals' covariance is
     ``sigma^2 G G^T`` (the two Sampson distances share m2 and the transfer reads all three
-    images, so it is not diagonal).
+    images, so it is not diagonal). r, J, G contiguous.
 
     uv (3, 2) pixels in images 1, 2, 3; R12, R13, R23 (3, 3) and t12, t13, t23 (3-tuples) the
     relative poses (``R23 = R12^T R13``, ``t23 = R12^T (t13 - t12)``). The epipolar
@@ -225,49 +243,98 @@ def feature_residuals(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, r, J, G,
     ``dt23 = [t23]x psi12 + R12^T (dt13 - dt12)``. ``pair23=False`` skips r1 (row 1 of r, J
     and G are zero): the filter's update does not use it (avio/filter/update.py, USED_RESIDUALS);
     skipping it made the whole filter 8 % cheaper (benchmarks/README.md: the Sampson A/B).
+    The filter runs the same arithmetic on all features at once (:func:`measure`: :func:`_feature_into`).
     docs/model.md: r Eq. 29, J Eqs. 30-33, G Eq. 34.
     """
+    r[0], r[1], r[2], r[3] = _one_feature(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, J.reshape(48),
+                                          G.reshape(24), pair23)
+
+
+@kernel_jit(inline="always")
+def _feature_into(u1, v1, u2, v2, u3, v3, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, J, G, S, f, pair23):
+    """:func:`feature_residuals` of the feature at pixels (u1, v1), (u2, v2), (u3, v3): its
+    Jacobian and pixel sensitivities into feature f of the flat arrays J (4 * 12 * S,) and G
+    (4 * 6 * S,) (entry (a, b) at ``(12 a + b) S + f``, resp. ``(6 a + b) S + f``: features last,
+    S apart); returns its 4 innovations. Inlined into :func:`_features_block`'s loop over the
+    features, whose body then has no call and no loop and whose stores lie a compile-time S
+    apart, so LLVM runs it on several features per instruction (the same operations per
+    feature: the same bits)."""
     ifx, ify = 1.0 / fx, 1.0 / fy
-    x1 = ((uv[0, 0] - cx) * ifx, (uv[0, 1] - cy) * ify, 1.0)
-    x2 = ((uv[1, 0] - cx) * ifx, (uv[1, 1] - cy) * ify, 1.0)
-    x3 = ((uv[2, 0] - cx) * ifx, (uv[2, 1] - cy) * ify, 1.0)
+    x1 = ((u1 - cx) * ifx, (v1 - cy) * ify, 1.0)
+    x2 = ((u2 - cx) * ifx, (v2 - cy) * ify, 1.0)
+    x3 = ((u3 - cx) * ifx, (v3 - cy) * ify, 1.0)
     # Eq. (29), row 0: the 1-2 Sampson distance; G row 0: Eq. (34).
     h0, gp0, gt0, w12, gx0 = epipolar_sampson(R12, t12, x1, x2, fx, fy)
-    r[0] = -h0
     for c in range(6):
         for a in range(4):
-            G[a, c] = 0.0
+            G[(a * 6 + c) * S + f] = 0.0
     for c in range(4):
-        G[0, c] = -gx0[c]
+        G[c * S + f] = -gx0[c]
     # Eq. (34): the transfer rows of G, [-dm3/d(m1, m2), I].
-    transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G[2:4, 0:4])
+    transfer_pixel_jacobian(R12, t12, R13, t13, x1, x2, w12, fx, fy, G, S, f)
     for a in range(2):
-        for c in range(4):
-            G[2 + a, c] = -G[2 + a, c]
-        G[2 + a, 4 + a] = 1.0
+        G[((2 + a) * 6 + 4 + a) * S + f] = 1.0
     for c in range(3):
-        J[0, c], J[0, 3 + c] = gp0[c], gt0[c]
-        J[0, 6 + c], J[0, 9 + c] = 0.0, 0.0
+        J[c * S + f], J[(3 + c) * S + f] = gp0[c], gt0[c]
+        J[(6 + c) * S + f], J[(9 + c) * S + f] = 0.0, 0.0
+    r1 = 0.0
     if pair23:
         h1, gp1, gt1, _, gx1 = epipolar_sampson(R23, t23, x2, x3, fx, fy)
-        r[1] = -h1
+        r1 = -h1
         for c in range(4):
-            G[1, 2 + c] = -gx1[c]
+            G[(1 * 6 + 2 + c) * S + f] = -gx1[c]
         Rg = rot(R23, gp1)
         gx = cross(gt1, t23)
         R12g = rot(R12, gt1)
         for c in range(3):
-            J[1, c] = -Rg[c] + gx[c]
-            J[1, 3 + c] = -R12g[c]
-            J[1, 6 + c] = gp1[c]
-            J[1, 9 + c] = R12g[c]
+            J[(1 * 12 + c) * S + f] = -Rg[c] + gx[c]
+            J[(1 * 12 + 3 + c) * S + f] = -R12g[c]
+            J[(1 * 12 + 6 + c) * S + f] = gp1[c]
+            J[(1 * 12 + 9 + c) * S + f] = R12g[c]
     else:
-        r[1] = 0.0
         for c in range(12):
-            J[1, c] = 0.0
+            J[(1 * 12 + c) * S + f] = 0.0
     # Eq. (29), rows 2-3: m3 minus the transfer (Eq. 28); J rows 2-3: Eq. (32).
-    u, v = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J[2:4])
-    r[2], r[3] = uv[2, 0] - u, uv[2, 1] - v
+    u, v = trifocal_transfer(R12, t12, R13, t13, x1, x2, w12, fx, fy, cx, cy, J, S, f)
+    return -h0, r1, u3 - u, v3 - v
+
+
+#: Features per block of :func:`measure`: a block's features run in SIMD lanes. The block's scratch
+#: has this compile-time stride, so LLVM sees the rows of J and G apart without runtime alias checks
+#: (with the runtime feature count as stride it gives up: "too many memory checks").
+LANES = 8
+
+
+@kernel_jit
+def _features_block(uL, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, rL, JL, GL):
+    """:func:`_feature_into` of the LANES features of a block, without the unused Sampson distance
+    2-3 (``pair23=False``, the filter's update): pixels uL (6 * LANES,) (row ``2 i + j``: image
+    i's coordinate j), innovations rL (4 * LANES,), Jacobians JL (48 * LANES,) and pixel
+    sensitivities GL (24 * LANES,), all features last."""
+    for f in range(LANES):
+        rL[f], rL[LANES + f], rL[2 * LANES + f], rL[3 * LANES + f] = _feature_into(
+            uL[f], uL[LANES + f], uL[2 * LANES + f], uL[3 * LANES + f], uL[4 * LANES + f], uL[5 * LANES + f],
+            R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, JL, GL, LANES, f, False)
+
+
+@kernel_jit
+def _one_feature(uv, R12, t12, R13, t13, R23, t23, fx, fy, cx, cy, J, G, pair23):
+    """:func:`_feature_into` of one feature at pixels uv (3, 2), into J (48,) and G (24,) (stride
+    1); returns its 4 innovations."""
+    return _feature_into(uv[0, 0], uv[0, 1], uv[1, 0], uv[1, 1], uv[2, 0], uv[2, 1], R12, t12, R13, t13, R23, t23,
+                         fx, fy, cx, cy, J, G, 1, 0, pair23)
+
+
+@kernel_jit(inline="always")
+def _copy_out(JL, GL, S, lo, n, J, Gp, f0):
+    # Features lo..lo+n-1 of the flat JL, GL (stride S) into features f0.. of J (4, 12, F), Gp (4, 6, F).
+    for a in range(4):
+        for b in range(12):
+            for lane in range(n):
+                J[a, b, f0 + lane] = JL[(12 * a + b) * S + lo + lane]
+        for b in range(6):
+            for lane in range(n):
+                Gp[a, b, f0 + lane] = GL[(6 * a + b) * S + lo + lane]
 
 
 @kernel_jit
@@ -295,7 +362,8 @@ def measure_workspace():
     return MeasureWorkspace(R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), Rc=np.empty((3, 3, 3)),
                             pc=np.empty((3, 3)), G=np.zeros((18, 27)), M=np.empty((6, 6)), R12=np.empty((3, 3)),
                             R13=np.empty((3, 3)), R23=np.empty((3, 3)), D=np.zeros((12, 18)), E=np.empty((3, 3)),
-                            uc=np.empty((3, 2)), rc=np.empty(4))
+                            uc=np.empty((3, 2)), uL=np.empty(6 * LANES), rL=np.empty(4 * LANES),
+                            JL=np.empty(48 * LANES), GL=np.empty(24 * LANES))
 
 
 
@@ -321,7 +389,7 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
     R3, p3, Jsh, Rc, pc, G, M, R12, R13 = ws.R3, ws.p3, ws.Jsh, ws.Rc, ws.pc, ws.G, ws.M, ws.R12, ws.R13
-    R23, D, E, uc, rc = ws.R23, ws.D, ws.E, ws.uc, ws.rc
+    R23, D, E, uc, uL, rL, JL, GL = ws.R23, ws.D, ws.E, ws.uc, ws.uL, ws.rL, ws.JL, ws.GL
     # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose
@@ -364,11 +432,31 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     a23 = rot_t(R12, (a13[0] - a12[0], a13[1] - a12[1], a13[2] - a12[2]))
     for i in range(3):
         t12[i], t13[i] = a12[i], a13[i]
-    for f in range(uv.shape[0]):
-        feature_residuals(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, r[:, f], J[:, :, f], Gp[:, :, f],
-                          pair23)
-        if cap > 0.0 and corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
-            feature_residuals(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rc, J[:, :, f], Gp[:, :, f], pair23)
+    # Eqs. (29)-(34). The filter's path (pair23=False): LANES features at a time, SIMD across them (a
+    # last, partial block repeats its last feature in the spare lanes: computed, not copied out).
+    F = uv.shape[0]
+    if pair23:
+        for f in range(F):
+            r[0, f], r[1, f], r[2, f], r[3, f] = _one_feature(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL,
+                                                              GL, True)
+            _copy_out(JL, GL, 1, 0, 1, J, Gp, f)
+    else:
+        for f0 in range(0, F, LANES):
+            n = min(LANES, F - f0)
+            for i in range(6):
+                for lane in range(LANES):
+                    uL[i * LANES + lane] = uv[f0 + min(lane, n - 1), i // 2, i % 2]
+            _features_block(uL, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rL, JL, GL)
+            for a in range(4):
+                for lane in range(n):
+                    r[a, f0 + lane] = rL[a * LANES + lane]
+            _copy_out(JL, GL, LANES, 0, n, J, Gp, f0)
+    # Eq. (35a): J and Gp again at the corrected pixels (r stays the measured pixels' innovation).
+    if cap > 0.0:
+        for f in range(F):
+            if corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
+                _one_feature(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL, GL, pair23)
+                _copy_out(JL, GL, 1, 0, 1, J, Gp, f)
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)
