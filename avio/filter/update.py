@@ -284,7 +284,7 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
                     acc -= Lm[a, k, f] * Jw[k, b, f]
                 Jw[a, b, f] = acc / Lm[a, a, f]
     A[:] = 0.0
-    X[:] = 0.0
+    beta[:] = 0.0
     used = 0
     rr = 0.0
     log_det_R = 0.0
@@ -300,16 +300,20 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
             rr += rw[a, f] * rw[a, f]
             for b in range(d):
                 jw_f[a, b] = Jw[a, b, f]
+        # Whole rows of A (12, the lanes of one SIMD operation and a half) and no test for zeros:
+        # adding jb * x = +-0 leaves a sum that started at +0 unchanged (in round-to-nearest it is
+        # never -0), so the upper triangle has the bits of the triangular, zero-skipping sum this
+        # replaced (issue 30); the lower triangle is overwritten by the mirror below.
         for a in range(M):
             rwa = rw[a, f]
             for b in range(d):
+                beta[b] += jw_f[a, b] * rwa
+            for b in range(d):
                 jb = jw_f[a, b]
-                if jb != 0.0:
-                    X[b, d] += jb * rwa
-                    for c in range(b, d):
-                        A[b, c] += jb * jw_f[a, c]
+                for c in range(d):
+                    A[b, c] += jb * jw_f[a, c]
     for b in range(d):
-        beta[b] = X[b, d]
+        X[b, d] = beta[b]
         for c in range(b):
             A[b, c] = A[c, b]
     # X = (I + A Sigma)^-1 [A | beta] (Eqs. 41-42)
