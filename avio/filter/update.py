@@ -349,11 +349,17 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
             f = PCt[a, c]
             for b in range(d):
                 K[a, b] += f * X[c, b]
+    # Each entry's 12 terms are summed in a register (the loop over b, of fixed length, unrolls: the
+    # loop over c vectorises), in the order of the row updates this replaced (issue 30); row a runs
+    # over its lower triangle rounded up to whole SIMD lanes (8): the extra entries are in the upper
+    # triangle, which no later row reads and the mirror of row c > a overwrites.
     for a in range(27):
-        for b in range(d):
-            kab = K[a, b]
-            for c in range(a + 1):
-                Pi[a, c] -= kab * CP[b, c]
+        n = min(27, (a // 8 + 1) * 8)
+        for c in range(n):
+            acc = Pi[a, c]
+            for b in range(12):
+                acc -= K[a, b] * CP[b, c]
+            Pi[a, c] = acc
         for c in range(a):
             Pi[c, a] = Pi[a, c]
     # Eq. (8): the injection.
