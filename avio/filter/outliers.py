@@ -182,6 +182,25 @@ def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count)
 
 
+@kernel_jit(inline="always")
+def _moved_rows(B, Y, moved, d):
+    """moved[(j, a), h] = sum_c B[a, c, j] Y[c, h] over the nonzero B[a, c, j] (c in order), for
+    B (m, d, F), Y (d, F), moved (F m, F). Each sum is kept in a register (with d a literal the loop
+    over c unrolls and the loop over h vectorises; issue 30: summed in memory, each step waited for
+    the store of the one before) and a zero B[a, c, j] is skipped by a select, so the bits are
+    those of the row updates this replaced."""
+    m, F = B.shape[0], B.shape[2]
+    for j in range(F):
+        for a in range(m):
+            for h in range(F):
+                acc = 0.0
+                for c in range(d):
+                    bc = B[a, c, j]
+                    y = Y[c, h]
+                    acc = acc + bc * y if bc != 0.0 else acc
+                moved[j * m + a, h] = acc
+
+
 @kernel_jit
 def one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, inlier, count):
     """:func:`one_point_ransac` with its scratch passed in (:func:`ransac_workspace`)."""
@@ -196,16 +215,10 @@ def one_point_ransac_into(r, B, z, sd, valid, threshold_sigma, out, Y, moved, in
         for c in range(d):
             for h in range(F):
                 Y[c, h] += z[a, h] * B[a, c, h]
-    for j in range(F):
-        for a in range(m):
-            row = moved[j * m + a]
-            for h in range(F):
-                row[h] = 0.0
-            for c in range(d):
-                bc = B[a, c, j]
-                if bc != 0.0:
-                    for h in range(F):
-                        row[h] += bc * Y[c, h]
+    if d == 12:  # the filter's: a literal trip count, so the sum over c unrolls into registers
+        _moved_rows(B, Y, moved, 12)
+    else:
+        _moved_rows(B, Y, moved, d)
     # inlier[j, h]: every residual of feature j within the threshold after hypothesis h (loops
     # run along h, contiguous, without early exits, so they vectorise).
     for j in range(F):
