@@ -72,17 +72,17 @@ def patch_update(src: str) -> str:
     src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py", 2)
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
     src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
-    src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        beta[b] = X[b, d]", 4)
+    src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        X[b, d] = beta[b]\n", 4)
     src = _wrap(src, "    n_valid = 0\n    gain_limit2", "    # CP = C P (C is", 11)
     # the solve overwrites the right-hand side X[:, d]: each pass restores it from beta first
-    src = _replace(src, "    matmul(A, Sig, Mx)\n", "    for b in range(d):\n        X[b, d] = beta[b]\n    matmul(A, Sig, Mx)\n")
     src = _wrap(src, "    for b in range(d):\n        X[b, d] = beta[b]\n", "    log_det_S = log_det_R\n", 12)
     src = _wrap(src, "    log_det_S = log_det_R\n", "    dof = M * used", 10)
     src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            K[a, b] = 0.0",
-                "    for a in range(27):\n        for b in range(d):\n            kab = K[a, b]", 5)
-    src = _replace(src, "            kab = K[a, b]\n", "            kab = (-1.0 if _q % 2 == 0 else 1.0) * K[a, b]\n")
-    src = _replace(src, "                Pi[a, c] -= kab * CP[b, c]\n", "                Pi[a, c] += kab * CP[b, c]\n")
-    src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            kab = (-1.0",
+                "    # Each entry's 12 terms are summed in a register", 5)
+    # the downdate runs -K, +K, -K (module docstring)
+    src = _replace(src, "            acc -= K[a, b] * CP[b, c]\n",
+                   "            acc += ((-1.0 if _q % 2 == 0 else 1.0) * K[a, b]) * CP[b, c]\n")
+    src = _wrap(src, "    for a in range(27):\n        n = min(27",
                 "    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)", 6)
     return src
 
