@@ -94,11 +94,16 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
         for b in range(15, 21):
             NR[a, b] = NR[a, b + 6]
     # Clone k-1 (rows/columns 21:27) moves to 15:21; in place is safe because each entry is
-    # read from the same or a later, not yet written position.
-    for a in range(21):
-        ma = a if a < 15 else a + 6
-        for b in range(21):
-            Pi[a, b] = Pi[ma, b if b < 15 else b + 6]
+    # read from the same or a later, not yet written position. Contiguous runs (they vectorise):
+    # the core rows' columns 21:27, then the clone's rows; the core block stays where it is.
+    for a in range(15):
+        for b in range(15, 21):
+            Pi[a, b] = Pi[a, b + 6]
+    for a in range(15, 21):
+        for b in range(15):
+            Pi[a, b] = Pi[a + 6, b]
+        for b in range(15, 21):
+            Pi[a, b] = Pi[a + 6, b + 6]
     for a in range(6):
         for b in range(21):
             Pi[21 + a, b] = NR[a, b]
