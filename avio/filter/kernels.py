@@ -40,33 +40,62 @@ from avio.filter.update import inject, noise_workspace, outlier_workspace, updat
 def propagate_covariance(Pi, Phi, Qd, T, U):
     """Covariance prediction of one filter, in place: ``P <- F P F^T + Q`` with
     ``F = blockdiag(Phi, I_12)`` (clones have no dynamics), Phi (15, 15) the core error
-    transition of the interval, Qd (15, 15) its discrete process noise (T (15, 27), U (15, 15):
-    scratch). (docs/model.md, Eq. 18; Phi: Eq. 16, Qd: Eq. 17.)"""
-    # Written out (matmul on slices would use strided views); zeros of Phi are skipped.
+    transition of the interval, with the zero pattern of Eq. 16 (avio.filter.propagation.propagate_one:
+    only the entries :func:`_phi_product` reads may be nonzero), Qd (15, 15) its discrete process
+    noise (T (15, 27), U (15, 15): scratch). (docs/model.md, Eq. 18; Phi: Eq. 16, Qd: Eq. 17.)"""
     # T = Phi P[0:15, :] (rows of the new cross-covariances and of W = Phi P15), U = W^T.
-    for a in range(15):
-        for b in range(27):
-            T[a, b] = 0.0
-        for c in range(15):
-            f = Phi[a, c]
-            if f != 0.0:
-                for b in range(27):
-                    T[a, b] += f * Pi[c, b]
+    _phi_product(Phi, Pi, Qd, T, 27, False)
     for a in range(15):
         for b in range(15):
             U[a, b] = T[b, a]
     # Eq. (18): P15 <- Phi W^T + Q = Phi P15 Phi^T + Q; cross blocks <- T[:, 15:27].
+    _phi_product(Phi, U, Qd, Pi, 15, True)
     for a in range(15):
-        for b in range(15):
-            Pi[a, b] = Qd[a, b]
-        for c in range(15):
-            f = Phi[a, c]
-            if f != 0.0:
-                for b in range(15):
-                    Pi[a, b] += f * U[c, b]
         for b in range(15, 27):
             Pi[a, b] = T[a, b]
             Pi[b, a] = T[a, b]
+
+
+@kernel_jit(inline="always")
+def _phi_product(Phi, X, Q, out, n, with_q):
+    """out[a, b] = (Q[a, b] if with_q else 0) + sum_c Phi[a, c] X[c, b] for a < 15, b < n, the sum
+    over the columns where row a of Phi (Eq. 16) can be nonzero, c in order: rows 0-2 (dp)
+    columns a, 3-5, 6 + a, 9-14; rows 3-5 (dtheta) 3-5, 12-14; rows 6-8 (dv) 3-5, a, 9-14; the
+    bias rows their diagonal. Each sum in a register over lanes of b (the loops over c have
+    fixed lengths and unroll). The same bits as skipping every zero of Phi (the loop this
+    replaced, issue 30): a sum from +0 (or Q >= 0) is never -0, so adding 0 * x (x finite: P is,
+    or the filter has stopped) changes nothing."""
+    for i in range(3):
+        for b in range(n):
+            acc = Q[i, b] if with_q else 0.0
+            acc += Phi[i, i] * X[i, b]
+            for c in range(3, 6):
+                acc += Phi[i, c] * X[c, b]
+            acc += Phi[i, 6 + i] * X[6 + i, b]
+            for c in range(9, 15):
+                acc += Phi[i, c] * X[c, b]
+            out[i, b] = acc
+    for a in range(3, 6):
+        for b in range(n):
+            acc = Q[a, b] if with_q else 0.0
+            for c in range(3, 6):
+                acc += Phi[a, c] * X[c, b]
+            for c in range(12, 15):
+                acc += Phi[a, c] * X[c, b]
+            out[a, b] = acc
+    for a in range(6, 9):
+        for b in range(n):
+            acc = Q[a, b] if with_q else 0.0
+            for c in range(3, 6):
+                acc += Phi[a, c] * X[c, b]
+            acc += Phi[a, a] * X[a, b]
+            for c in range(9, 15):
+                acc += Phi[a, c] * X[c, b]
+            out[a, b] = acc
+    for a in range(9, 15):
+        for b in range(n):
+            acc = Q[a, b] if with_q else 0.0
+            out[a, b] = acc + Phi[a, a] * X[a, b]
 
 
 @kernel_jit
