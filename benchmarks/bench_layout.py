@@ -140,7 +140,8 @@ def _inputs(n: int, seed: int = 0):
     A = rng.normal(size=(n, 27, 27))
     P = np.einsum("nij,nkj->nik", A, A) * 1e-3
     Phi = np.tile(np.eye(15), (n, 1, 1))
-    Phi[:, 0:3, 6:9] = 0.1  # dp <- dv
+    for i in range(3):
+        Phi[:, i, 6 + i] = 0.1  # dp <- dv (T on the diagonal: the zero pattern of Eq. 16, which the kernel relies on)
     Phi[:, 6:9, 3:6] = rng.normal(size=(n, 3, 3))  # dv <- dtheta
     Phi[:, 6:9, 9:12] = -0.1  # dv <- db_a
     Phi[:, 3:6, 12:15] = -0.1  # dtheta <- db_g

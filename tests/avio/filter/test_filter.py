@@ -214,7 +214,13 @@ def test_kernel_covariance_prediction_is_f_p_ft_plus_q():
 
     rng = np.random.default_rng(0)
     P, Q = _spd(rng, 27), _spd(rng, 15) * 1e-3
-    Phi = np.eye(15) + 0.1 * rng.normal(size=(15, 15))
+    # Phi with the zero pattern of Eq. (16), which the kernel's sums rely on (kernels._phi_product).
+    pattern = np.eye(15, dtype=bool)
+    pattern[0:3, 3:6] = pattern[0:3, 9:15] = pattern[3:6, 3:6] = pattern[3:6, 12:15] = True
+    pattern[6:9, 3:6] = pattern[6:9, 9:15] = True
+    for i in range(3):
+        pattern[i, 6 + i] = True
+    Phi = np.where(pattern, np.eye(15) + 0.1 * rng.normal(size=(15, 15)), 0.0)
     Fm = np.eye(27)
     Fm[:15, :15] = Phi
     Fm[:15, 15:] = 0.0
