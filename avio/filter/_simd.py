@@ -63,11 +63,17 @@ class PackedCompiler(NoAliasCompiler):
             return super()._compile_core()
 
 
-def kernel_jit(func=None, **options):
+def kernel_jit(func=None, *, allocates: bool = False, **options):
     """``numba.njit`` of the filter's kernel functions: ``cache=True``, ``error_model="numpy"``
     (a division by zero gives inf/NaN; such features are dropped), no fastmath (the same bits on
-    every run) and :class:`PackedCompiler` (non-aliasing arguments, SLP on)."""
-    options = {"cache": True, "error_model": "numpy", "pipeline_class": PackedCompiler, **options}
+    every run) and :class:`PackedCompiler` (non-aliasing arguments, SLP on).
+
+    Without numba's reference counting (NRT, ``_nrt=False``) unless ``allocates``: a function that
+    only computes on arrays its caller owns needs none, and each view or array bound to a name
+    cost an atomic increment and decrement (issue 30: ~10 % of the kernel's time went to them,
+    ``perf``). A function that allocates (np.empty, a workspace) must say ``allocates=True``; without
+    it numba refuses to compile the allocation, so a forgotten flag is a compile error, not a leak."""
+    options = {"cache": True, "error_model": "numpy", "pipeline_class": PackedCompiler, "_nrt": allocates, **options}
     return numba.njit(**options) if func is None else numba.njit(**options)(func)
 
 

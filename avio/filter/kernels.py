@@ -144,7 +144,7 @@ def slide(R, p, v, omega, td, cp, cR, Pi, R3, p3, J, E, NR):
             Pi[21 + a, 21 + b] = acc
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T):
     """Pseudo-measurement v = 0 with noise sigma_mps (m/s) of one filter, in place: the
     Kalman update ``S = P_vv + sigma^2 I``, ``dx = -P_xv S^-1 v``, ``P -= P_xv S^-1 P_vx``
@@ -156,7 +156,7 @@ def zero_velocity_update(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, 
     zero_velocity_update_into(R, p, v, ba, bg, cp0, cR0, cp1, cR1, Pi, sigma_mps, E, T, zero_velocity_workspace())
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def zero_velocity_workspace():
     """Scratch arrays of :func:`zero_velocity_update_into` (avio.filter.interface.ZeroVelocityWorkspace)."""
     return ZeroVelocityWorkspace(S=np.empty((3, 3)), Z=np.empty((3, 28)), dx=np.empty(27), K=np.empty((27, 27)))
@@ -208,7 +208,7 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 
-@kernel_jit(nogil=True)
+@kernel_jit(nogil=True, allocates=True)
 def run_filters(lo, hi, seq, cal, cfg, out):
     """All frames of filters lo..hi-1 (avio/filter/batch.py: run): each filter alone, one after the
     other (so a batch gives the same bits as single runs), its frames in order (docs/model.md,

@@ -355,7 +355,7 @@ def shifted_pose(R, p, v, omega, td, R3, p3, J, E):
 
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def measure_workspace():
     """Scratch arrays of :func:`measure` (allocated once per batch, not per filter;
     avio.filter.interface.MeasureWorkspace)."""

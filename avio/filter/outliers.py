@@ -97,14 +97,14 @@ def forward_lanes(L, b, y):
             y[i, f] = s / L[i, i, f]
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def innovations_workspace(m, d, F):
     """Scratch arrays of :func:`feature_innovations_into` (m residuals per feature, d parameters,
     F features): Lp (d, d), S (m, m, F), L (m, m, F), y (m, F); allocated once per run."""
     return np.empty((d, d)), np.empty((m, m, F)), np.empty((m, m, F)), np.empty((m, F))
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def feature_innovations(r, H, P, Rm, B, z, logdet):
     """Per-feature ``B_j = H_j L`` (m, d, F) with ``P = L L^T`` (so ``H_j P H_k^T = B_j B_k^T``),
     ``z_j = S_j^-1 r_j`` (m, F) with ``S_j = H_j P H_j^T + R_j = B_j B_j^T + R_j`` and
@@ -164,14 +164,14 @@ def mahalanobis_gate(r, z, valid, chi2_threshold, out):
         out[f] = valid[f] and d2 <= chi2_threshold
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def ransac_workspace(F, m, d):
     """Scratch arrays of :func:`one_point_ransac_into` for F features of m residuals and d
     parameters: Y (d, F), moved (F m, F), inlier (F, F) bool, count (F,) int64."""
     return np.empty((d, F)), np.empty((F * m, F)), np.empty((F, F), np.bool_), np.empty(F, np.int64)
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def one_point_ransac(r, B, z, sd, valid, threshold_sigma, out):
     """out (F,): low-innovation inliers of the best 1-point hypothesis (module docstring);
     B, z from :func:`feature_innovations`; sd (m, F) the residuals' measurement standard

@@ -189,7 +189,7 @@ def preintegrate(imu_t_s, accel, gyro, frame_t_s, max_step_s: float) -> Preinteg
     )
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def propagate_workspace():
     """Scratch arrays of :func:`propagate_one` (avio.filter.interface.PropagateWorkspace)."""
     return PropagateWorkspace(E=np.empty((3, 3)), RdR=np.empty((3, 3)), M=np.empty((3, 3)), dv=np.empty(3),

@@ -51,7 +51,7 @@ def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
 
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run;
     avio.filter.interface.UpdateWorkspace)."""
@@ -65,7 +65,7 @@ def update_workspace(F):
 
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def noise_workspace(F):
     """Scratch arrays of the measurement-noise model of :func:`update` for F features: the
     pixel sensitivities of the 4 residuals (4, 6, F); then, features last as well
@@ -81,7 +81,7 @@ def noise_workspace(F):
 
 
 
-@kernel_jit
+@kernel_jit(allocates=True)
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
     (avio.filter.outliers.innovations_workspace, then avio.filter.outliers.ransac_workspace)."""
