@@ -3,7 +3,7 @@
 :func:`avio.filter.kernels.run_filters` takes five: :class:`SequenceInputs` (what the sequence
 gives every filter), :class:`Calibrations` (one row per filter), :class:`Settings` (the scalar
 configuration), :class:`Outputs` (written by the kernel) and the range of filters to run; its
-per-filter scratch is :class:`Workspace`. Each is a ``typing.NamedTuple``, which numba types
+scratch is :class:`FrameWorkspace` and :class:`UpdateWorkspaces`. Each is a ``typing.NamedTuple``, which numba types
 as a record of its fields: passed by value, the fields read by name in compiled code and
 compiled to the same loads as separate arguments (the bits and the call cost are those of the
 positional tuple of 55 parameters it replaced; benchmarks/README.md). numba's structref was the
@@ -209,6 +209,37 @@ class ZeroVelocityWorkspace(NamedTuple):
     Z: np.ndarray  #: (3, 28)
     dx: np.ndarray  #: (27,)
     K: np.ndarray  #: (27, 27)
+
+
+class FrameWorkspace(NamedTuple):
+    """Scratch of the frame loop (avio.filter.kernels.run_filters): one filter's state and the
+    prediction, slide and divergence scratch (allocated once per run)."""
+
+    omega: np.ndarray  #: (3,) gyro minus bias at the frame time, rad/s
+    R: np.ndarray  #: (3, 3) the state at the last frame: R_world_imu
+    p: np.ndarray  #: (3,) m
+    v: np.ndarray  #: (3,) m/s
+    ba: np.ndarray  #: (3,) m/s^2
+    bg: np.ndarray  #: (3,) rad/s
+    cp: np.ndarray  #: (2, 3) the clones' positions (frames k-2, k-1), m
+    cR: np.ndarray  #: (2, 3, 3) their rotations
+    P: np.ndarray  #: (27, 27) covariance
+    R_new: np.ndarray  #: (3, 3) the predicted state
+    v_new: np.ndarray  #: (3,)
+    p_new: np.ndarray  #: (3,)
+    Phi: np.ndarray  #: (15, 15) the interval's error transition
+    E: np.ndarray  #: (3, 3)
+    T3: np.ndarray  #: (3, 3)
+    Tq: np.ndarray  #: (15, 27)
+    U: np.ndarray  #: (15, 15)
+    R3: np.ndarray  #: (3, 3) the exposure-time pose of the slide
+    p3: np.ndarray  #: (3,)
+    Jsh: np.ndarray  #: (6, 15) its Jacobian
+    NR: np.ndarray  #: (6, 27) the new clone's covariance rows
+    ba_s: np.ndarray  #: (3,) the biases before the frame (restored where it diverges)
+    bg_s: np.ndarray  #: (3,)
+    sig0: np.ndarray  #: (15,) the initial sigmas (reported after a divergence)
+    no_record: np.ndarray  #: (F,) uint8, where the decisions are not recorded
 
 
 class UpdateWorkspaces(NamedTuple):

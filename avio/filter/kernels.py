@@ -30,7 +30,7 @@ import numpy as np
 
 from avio.filter._linalg import copy1, copy2, solve
 from avio.filter._simd import kernel_jit
-from avio.filter.interface import FilterState, UpdateWorkspaces, ZeroVelocityWorkspace
+from avio.filter.interface import FilterState, FrameWorkspace, UpdateWorkspaces, ZeroVelocityWorkspace
 from avio.filter.measurement import measure_workspace, shifted_pose
 from avio.filter.propagation import propagate_one, propagate_workspace
 from avio.filter.update import inject, noise_workspace, outlier_workspace, update, update_workspace
@@ -232,22 +232,31 @@ def run_filters(lo, hi, seq, cal, cfg, out):
     (each filter on one thread, with the same operations as alone: the bits do not depend on the
     batch or thread count).
     """
-    N, F = seq.T_s.shape[0], seq.uv.shape[1]
+    F = seq.uv.shape[1]
     uws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                            outliers=outlier_workspace(F))
-    pws, zws = propagate_workspace(), zero_velocity_workspace()
-    omega = np.empty(3)
-    R, p, v, ba, bg = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    cp, cR, P = np.empty((2, 3)), np.empty((2, 3, 3)), np.empty((27, 27))
-    R_new, v_new, p_new, Phi = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((15, 15))
-    E, T3, Tq, U = np.empty((3, 3)), np.empty((3, 3)), np.empty((15, 27)), np.empty((15, 15))
-    R3, p3, Jsh, NR = np.empty((3, 3)), np.empty(3), np.empty((6, 15)), np.empty((6, 27))
-    ba_s, bg_s = np.empty(3), np.empty(3)
+    e3, e33 = np.empty(3), np.empty((3, 3))
+    fws = FrameWorkspace(
+        omega=np.empty(3), R=np.empty((3, 3)), p=np.empty(3), v=np.empty(3), ba=np.empty(3), bg=np.empty(3),
+        cp=np.empty((2, 3)), cR=np.empty((2, 3, 3)), P=np.empty((27, 27)), R_new=np.empty((3, 3)), v_new=e3.copy(),
+        p_new=e3.copy(), Phi=np.empty((15, 15)), E=e33.copy(), T3=e33.copy(), Tq=np.empty((15, 27)),
+        U=np.empty((15, 15)), R3=e33.copy(), p3=e3.copy(), Jsh=np.empty((6, 15)), NR=np.empty((6, 27)),
+        ba_s=e3.copy(), bg_s=e3.copy(), sig0=np.sqrt(np.abs(np.diag(seq.P0)[:15])), no_record=np.zeros(F, np.uint8))
+    _run_range(lo, hi, seq, cal, cfg, out, uws, propagate_workspace(), zero_velocity_workspace(), fws)
+
+
+@kernel_jit
+def _run_range(lo, hi, seq, cal, cfg, out, uws, pws, zws, fws):
+    """The frame loop of :func:`run_filters` with its workspaces (interface.FrameWorkspace fws),
+    compiled without reference counting (kernel_jit; it allocates nothing)."""
+    N = seq.T_s.shape[0]
+    omega, R, p, v, ba, bg, cp, cR, P = fws.omega, fws.R, fws.p, fws.v, fws.ba, fws.bg, fws.cp, fws.cR, fws.P
+    R_new, v_new, p_new, Phi, E, T3, Tq, U = fws.R_new, fws.v_new, fws.p_new, fws.Phi, fws.E, fws.T3, fws.Tq, fws.U
+    R3, p3, Jsh, NR, ba_s, bg_s, sig0, no_record = fws.R3, fws.p3, fws.Jsh, fws.NR, fws.ba_s, fws.bg_s, fws.sig0, \
+        fws.no_record
     # The predicted state the updates correct: views, so made once.
     x = FilterState(R=R_new, p=p_new, v=v_new, ba=ba, bg=bg, cp0=cp[0], cR0=cR[0], cp1=cp[1], cR1=cR[1], P=P)
-    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))
     record = out.used.shape[0] > 0
-    no_record = np.zeros(F, np.uint8)
     zv_sigma = cfg.zero_velocity_sigma_mps
     for i in range(lo, hi):
         copy2(R, seq.R0)
