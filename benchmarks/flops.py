@@ -69,7 +69,7 @@ UPDATE = {"measurement": (2178, 963, 0), "noise model": (1, 105, 0), "C P and Si
           "injection": (324, 0, 0), "update, selection": (18, 0, 0)}
 
 
-#: Phases that run whole blocks of avio.filter.measurement.LANES features (a partial block's spare
+#: Phases that run whole blocks of avio.filter.trifocal.LANES features (a partial block's spare
 #: lanes compute too): their per-feature terms count F rounded up to whole blocks.
 IN_BLOCKS = ("measurement",)
 
@@ -77,7 +77,7 @@ IN_BLOCKS = ("measurement",)
 def per_update_frame(F: int) -> dict[str, int]:
     """FLOPs of each phase of one update frame (prediction, update, slide, divergence test) with F
     features per update (:data:`UPDATE`, :data:`EVERY_FRAME`; :data:`IN_BLOCKS`)."""
-    from avio.filter.measurement import LANES
+    from avio.filter.trifocal import LANES
 
     blocks = -(-F // LANES) * LANES
     return {k: a + b * (blocks if k in IN_BLOCKS else F) + c * F * F

@@ -88,15 +88,17 @@ def patch_update(src: str) -> str:
 
 
 def patch_kernels(src: str) -> str:
-    """avio/filter/kernels.py: run_filters takes ``rep`` and passes it to the update; the state
+    """avio/filter/kernels.py: run_filters takes ``rep`` and passes it down to the update; the state
     prediction wrapped, the covariance prediction and the slide run again on scratch copies."""
     at = "avio/filter/kernels.py"
     src = _replace(src, "def run_filters(lo, hi, seq, cal, cfg, out):", "def run_filters(lo, hi, seq, cal, cfg, out, rep):", at)
     src = _replace(src, "record, decided)\n", "record, decided, rep)\n", at)
-    src = _replace(src, "    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))\n",
-                   "    sig0 = np.sqrt(np.abs(np.diag(seq.P0)[:15]))\n"
-                   "    Ps, Ps2 = np.empty((27, 27)), np.empty((27, 27))\n"
-                   "    cps, cRs = np.empty((2, 3)), np.empty((2, 3, 3))\n", at)
+    # the frame loop (_run_range, which may not allocate) gets rep and the scratch copies from run_filters
+    src = _replace(src, "zero_velocity_workspace(), fws)\n",
+                   "zero_velocity_workspace(), fws, rep, np.empty((27, 27)), np.empty((27, 27)),\n"
+                   "               np.empty((2, 3)), np.empty((2, 3, 3)))\n", at)
+    src = _replace(src, "def _run_range(lo, hi, seq, cal, cfg, out, uws, pws, zws, fws):",
+                   "def _run_range(lo, hi, seq, cal, cfg, out, uws, pws, zws, fws, rep, Ps, Ps2, cps, cRs):", at)
     src = _wrap(src, "                propagate_one(", "                propagate_covariance(P, Phi", 7, at)
     src = _replace(src, "                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)\n",
                    "                for _q in range(rep[8] - 1):\n                    Ps[:] = P\n"

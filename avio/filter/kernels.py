@@ -9,7 +9,7 @@ over ~200 calls per frame, whose overhead cost more than the arithmetic. numba w
 array arguments and LLVM's SLP vectoriser (avio/filter/_simd.py: kernel_jit; the same bits, packed
 instructions where LLVM finds them) and ``cache=True`` (compiled once, then loaded from
 avio/filter/__pycache__; NB numba's cache does not notice edits to functions of other modules called
-from a cached one: after editing avio/filter/update.py, measurement.py, outliers.py, _linalg.py or
+from a cached one: after editing avio/filter/update.py, measurement.py, trifocal.py, outliers.py, _linalg.py or
 propagation.py, delete avio/filter/__pycache__/*.nbi and *.nbc), ``error_model="numpy"`` (a division
 by zero gives inf/NaN as numpy did; such features are dropped) and no fastmath, so every run gives
 the same bits. Each filter runs alone on one thread (:func:`run_filters` runs a contiguous range of

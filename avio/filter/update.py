@@ -152,7 +152,7 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
 
     Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
     baseline or with a degenerate transfer: not used), each feature's measurement covariance
-    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.filter.measurement.feature_residuals), outlier
+    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.filter.trifocal.feature_residuals), outlier
     rejection (``mode``: MODE_* of this module) on the linearised measurement, then the Kalman
     update. A transfer is degenerate when it amplifies the pixel noise more than
     ``max_transfer_gain`` times (the line through m2 nearly through the epipole: tiny changes of

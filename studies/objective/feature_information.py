@@ -36,8 +36,8 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from avio.filter.measurement import feature_residuals
 from avio.filter.outliers import forward_lanes
+from avio.filter.trifocal import feature_residuals
 from avio.filter.update import USED_RESIDUALS, _noise_model
 
 FX, CX, CY, SIZE = 718.856, 607.1928, 185.2157, (1241, 376)

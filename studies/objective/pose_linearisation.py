@@ -58,9 +58,9 @@ from objective_bias import DRIVE, FRESH_SEED0
 from score_lags import sim_config
 
 from avio.filter.batch import run
-from avio.filter.measurement import feature_residuals
 from avio.filter.outliers import forward_lanes
 from avio.filter.prepare import prepare
+from avio.filter.trifocal import feature_residuals
 from avio.filter.update import _noise_model
 from avio.sim.simulator import simulate
 from bench.problems.synthetic import Synthetic

@@ -9,7 +9,8 @@ import numpy as np
 
 from avio.calibration import Calibration
 from avio.filter.batch import _calibrations, _f64, _State
-from avio.filter.measurement import MeasurementError, feature_residuals, measure, measure_workspace, rot_t
+from avio.filter.measurement import MeasurementError, measure, measure_workspace
+from avio.filter.trifocal import feature_residuals, rot_t
 from avio.filter.update import inject
 
 

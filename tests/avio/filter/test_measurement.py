@@ -55,7 +55,7 @@ def test_triplet_jacobian_matches_finite_differences():
 def test_the_filter_path_without_the_unused_sampson_distance_keeps_the_other_rows():
     # avio/filter/update.py measures with pair23=False (the update uses residuals 0, 2, 3): the other
     # rows must be the very same bits, and row 1 zero.
-    from avio.filter.measurement import feature_residuals, rot_t
+    from avio.filter.trifocal import feature_residuals, rot_t
 
     intr, Rc, pc, uv, _ = _triplet(np.random.default_rng(5), n=1)
     R12, t12, R13, t13 = (a[0] for a in relative_poses(Rc, pc))

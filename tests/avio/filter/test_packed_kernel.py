@@ -1,6 +1,6 @@
 """The filter's kernel functions are compiled with non-aliasing arguments and LLVM's SLP vectoriser
-(avio/filter/_simd.py: kernel_jit): compiled afresh, the covariance prediction, scalar without the
-switches, contains packed FP64 instructions. If a numba upgrade moves either switch, this fails
+(avio/filter/_simd.py: kernel_jit): compiled afresh, the covariance prediction has more packed and
+fewer scalar FP64 instructions than with numba's defaults. If a numba upgrade moves either switch, this fails
 rather than the kernel silently turning scalar (its outputs stay the same bits either way:
 tests/avio/filter/test_against_history.py)."""
 
@@ -39,6 +39,7 @@ def test_the_kernels_covariance_prediction_compiles_to_packed_fp64(tmp_path):
     done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     got = json.loads(done.stdout.strip().splitlines()[-1])
-    assert got["plain"]["packed"] == 0, got  # without the switches: scalar
-    assert got["kernel"]["packed"] > 0 and got["kernel"]["scalar"] < got["plain"]["scalar"], got
+    # The switches pack more (numba's defaults vectorise the register sums of _phi_product only in
+    # part); without them the two compiles would be the same.
+    assert got["kernel"]["packed"] > got["plain"]["packed"] and got["kernel"]["scalar"] < got["plain"]["scalar"], got
     assert got["slp_after"] == 0  # the switch was on for the kernel's compile only
