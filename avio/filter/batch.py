@@ -81,7 +81,7 @@ def threads() -> int:
 
 #: Measured first-run compile time of the kernel on the 2-core development machine, seconds
 #: (benchmarks/bench_filter.py speed prints it), quoted in the message before a cold compile.
-COMPILE_ESTIMATE_S = 40
+COMPILE_ESTIMATE_S = 55
 _HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
 _kernel_loaded = False
 
