@@ -70,7 +70,7 @@ def kernel_jit(func=None, *, allocates: bool = False, **options):
 
     Without numba's reference counting (NRT, ``_nrt=False``) unless ``allocates``: a function that
     only computes on arrays its caller owns needs none, and each view or array bound to a name
-    cost an atomic increment and decrement (issue 30: ~10 % of the kernel's time went to them,
+    cost an atomic increment and decrement (issue 30: ~8 % of the kernel's time went to them,
     ``perf``). A function that allocates (np.empty, a workspace) must say ``allocates=True``; without
     it numba refuses to compile the allocation, so a forgotten flag is a compile error, not a leak."""
     options = {"cache": True, "error_model": "numpy", "pipeline_class": PackedCompiler, "_nrt": allocates, **options}

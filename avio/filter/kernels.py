@@ -235,13 +235,12 @@ def run_filters(lo, hi, seq, cal, cfg, out):
     F = seq.uv.shape[1]
     uws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                            outliers=outlier_workspace(F))
-    e3, e33 = np.empty(3), np.empty((3, 3))
     fws = FrameWorkspace(
         omega=np.empty(3), R=np.empty((3, 3)), p=np.empty(3), v=np.empty(3), ba=np.empty(3), bg=np.empty(3),
-        cp=np.empty((2, 3)), cR=np.empty((2, 3, 3)), P=np.empty((27, 27)), R_new=np.empty((3, 3)), v_new=e3.copy(),
-        p_new=e3.copy(), Phi=np.empty((15, 15)), E=e33.copy(), T3=e33.copy(), Tq=np.empty((15, 27)),
-        U=np.empty((15, 15)), R3=e33.copy(), p3=e3.copy(), Jsh=np.empty((6, 15)), NR=np.empty((6, 27)),
-        ba_s=e3.copy(), bg_s=e3.copy(), sig0=np.sqrt(np.abs(np.diag(seq.P0)[:15])), no_record=np.zeros(F, np.uint8))
+        cp=np.empty((2, 3)), cR=np.empty((2, 3, 3)), P=np.empty((27, 27)), R_new=np.empty((3, 3)), v_new=np.empty(3),
+        p_new=np.empty(3), Phi=np.empty((15, 15)), E=np.empty((3, 3)), T3=np.empty((3, 3)), Tq=np.empty((15, 27)),
+        U=np.empty((15, 15)), R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), NR=np.empty((6, 27)),
+        ba_s=np.empty(3), bg_s=np.empty(3), sig0=np.sqrt(np.abs(np.diag(seq.P0)[:15])), no_record=np.zeros(F, np.uint8))
     _run_range(lo, hi, seq, cal, cfg, out, uws, propagate_workspace(), zero_velocity_workspace(), fws)
 
 
