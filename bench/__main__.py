@@ -12,6 +12,7 @@ nothing run or written; 130 interrupted (Ctrl-C): the last line is the command t
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import shlex
@@ -164,5 +165,17 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(1)
 
 
+def cli() -> None:
+    """``main()`` as a command (``python -m bench``, ``avio-bench``): at the end the objects of the run are
+    frozen out of the garbage collector, so the interpreter's exit does not walk them one last time
+    (with the freeze after the imports, 4.41-4.58 -> 4.13-4.23 s for a 500-evaluation job). Not in ``main``,
+    which tests call in their own process."""
+    gc.freeze()  # the imports' objects: never garbage, so no collection during the run walks them either
+    try:
+        main()
+    finally:
+        gc.freeze()
+
+
 if __name__ == "__main__":
-    main()
+    cli()

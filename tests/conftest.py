@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,19 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 # Every skip for missing real data says this (``no_data``): the terminal summary folds them into one line.
 NO_DATA = "real data absent"
+
+
+def pytest_configure(config):
+    """The suite's simulated drives are cached in a folder of its own (avio/sim/cache.py), so that no test
+    reads a drive a user's session (or an older checkout) left, and none is written to the user's cache.
+    Set before xdist starts its workers: they and every subprocess share it."""
+    if not os.environ.get("AVIO_CACHE_DIR") and not hasattr(config, "workerinput"):
+        os.environ["AVIO_CACHE_DIR"] = config._avio_cache = tempfile.mkdtemp(prefix="avio-test-cache-")
+
+
+def pytest_unconfigure(config):
+    if getattr(config, "_avio_cache", None):
+        shutil.rmtree(config._avio_cache, ignore_errors=True)
 
 
 def shared_data_dir() -> Path:

@@ -27,7 +27,6 @@ from avio.errors import AvioError
 from avio.geometry import so3_exp
 from avio.reference import IMAGE_SIZE_PX, kitti_2011_10_03_calibration
 from avio.sequence import ImuNoise, ImuSamples, Sequence, content_hash
-from avio.sim.camera import make_landmarks, simulate_tracks
 from avio.sim.trajectory import KINDS, TrajectoryFn, make_trajectory
 
 GRAVITY_MPS2 = 9.81
@@ -226,6 +225,8 @@ def simulate_world(config: SimConfig, seed: int | tuple[int, ...], image_dir: st
                    true_calibration: Calibration | None = None,
                    noise_seed: int | tuple[int, ...] | None = None) -> tuple[Sequence, SimWorld]:
     """``simulate`` plus the hidden truth (SimWorld) behind the sequence."""
+    from avio.sim.camera import make_landmarks, simulate_tracks  # scipy's splines: not for a cached drive
+
     config.validate()
     streams = _seed_streams(seed, noise_seed)
     rngs = {k: np.random.default_rng(v) for k, v in streams.items()}

@@ -25,14 +25,15 @@ World frame: z up, origin and heading (+x) at the pose of t = 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
-from scipy.interpolate import BSpline, make_interp_spline
-from scipy.spatial.transform import Rotation
 
 from avio.errors import AvioError
 from avio.sequence import GroundTruth
+
+if TYPE_CHECKING:
+    from scipy.interpolate import BSpline
 
 KINDS = ("straight", "city", "city_hills", "full3d")
 _PATH_STEP_M = 0.5
@@ -110,6 +111,8 @@ class TrajectoryFn:
         return self._dist(np.asarray(t_s, float)) - self._dist0
 
     def __call__(self, t_s: np.ndarray) -> TrajectoryState:
+        from scipy.spatial.transform import Rotation  # scipy on a cache miss only (avio.sim.cache)
+
         t = np.atleast_1d(np.asarray(t_s, float))
         if t.size and (t.min() < self.t_start_s - 1e-9 or t.max() > self.t_end_s + 1e-9):
             raise TrajectoryError(
@@ -168,6 +171,9 @@ def _city_curvature(s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def _make_path(kind: str, s_min: float, s_max: float, rng: np.random.Generator) -> tuple[BSpline, _Sines]:
     """Quintic path spline P(s) (s in [s_min, s_max], P(0) = 0) and the road bank phi(s) (rad)."""
+    from scipy.integrate import cumulative_trapezoid
+    from scipy.interpolate import make_interp_spline
+
     n_neg = int(np.ceil(-s_min / _PATH_STEP_M)) + 3
     n_pos = int(np.ceil(s_max / _PATH_STEP_M)) + 3
     s = _PATH_STEP_M * np.arange(-n_neg, n_pos + 1)
@@ -211,6 +217,8 @@ def ar1(x: np.ndarray, phi: float) -> np.ndarray:
 def _make_speed(kind: str, duration_s: float, speed_mps: float, pad_s: float, n_stops: int, rng) -> BSpline:
     """Quintic speed spline v(t) >= 0 on [-pad_s, duration_s + pad_s] with mean ``speed_mps``
     over [0, duration_s]; each stop is 7 zero coefficients (an exact stop of ~2 s)."""
+    from scipy.interpolate import BSpline
+
     k = 5
     n_int = int(np.ceil((duration_s + 2 * pad_s) / _SPEED_KNOT_S))
     knots = -pad_s + _SPEED_KNOT_S * np.arange(-k, n_int + k + 1)

@@ -82,7 +82,7 @@ class SyntheticParams(VioParams):
         return tuple(_sim_config(self.drives[0], self.sim).image_size_px)
 
     def build(self) -> Drives:
-        from avio.sim.simulator import simulate
+        from avio.sim.cache import simulate_cached as simulate
 
         first = simulate(_sim_config(self.drives[0], self.sim), self.data_seed)
         camera = first.truth_calibration

@@ -12,6 +12,8 @@ of it then composed by Hydra).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from hydra import compose
 from hydra._internal.config_loader_impl import get_overrides_dirname
 from hydra.core.global_hydra import GlobalHydra
@@ -115,6 +117,18 @@ def job_part(cfg: DictConfig) -> dict:
         node = cfg._get_node(key)
         part[key] = OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else cfg[key]
     return part
+
+
+def top_level_keys(conf_dir: Path, search: list[str]) -> set[str]:
+    """The composed config's top-level keys (``hydra`` aside). Without a ``hydra.searchpath`` override
+    they are read from ``conf_dir``/config.yaml, its own keys and its defaults' groups (~1 ms, where a composition
+    costs ~0.17 s of every ``python -m bench``; a test keeps the two equal); with one, composed."""
+    if search:
+        return set(compose("config", overrides=search).keys())
+    node = OmegaConf.to_container(OmegaConf.load(conf_dir / "config.yaml"))
+    groups = {next(iter(entry)).removeprefix("override ").split("@")[0].split("/")[0]
+              for entry in node.pop("defaults", []) if isinstance(entry, dict)}
+    return (set(node) | groups) - {"hydra"}
 
 
 def skip_sweeper_validation() -> None:

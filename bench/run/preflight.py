@@ -50,7 +50,7 @@ from bench.records import (
     read_record,
     refuse_symlink,
 )
-from bench.run.compose_cache import JobComposer, job_part
+from bench.run.compose_cache import JobComposer, job_part, top_level_keys
 from bench.run.design_checks import TruthWarnings, check_design, dotted_paths, seed_sweep_note
 from bench.run.identity import config_hash, identity_differences
 from bench.run.job import ConfigError, budget_of, check_presentation, identity_of, import_plugins, instance_of, seed_of
@@ -119,7 +119,7 @@ def check_keys(argv: list[str]) -> None:
         [o for o in overrides if not o.lstrip("+~").startswith("hydra")])
     if not parsed:
         return
-    known = set(compose("config", overrides=search).keys())
+    known = top_level_keys(CONF_DIR, search)
     loader = GlobalHydra.instance().config_loader()
     for override in parsed:
         key = override.key_or_group

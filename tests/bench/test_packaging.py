@@ -34,7 +34,7 @@ def test_wheel_holds_the_configs_and_the_console_script(wheel):
     expected = {p.relative_to(REPO).as_posix() for p in (REPO / "bench" / "conf").rglob("*.yaml")}
     assert expected and shipped == expected
     entry = next(n for n in names if n.endswith("entry_points.txt"))
-    assert "avio-bench = bench.__main__:main" in zipfile.ZipFile(wheel).read(entry).decode()
+    assert "avio-bench = bench.__main__:cli" in zipfile.ZipFile(wheel).read(entry).decode()
     # the bench_slurm/bench_local launchers: a module of the hydra_plugins namespace package
     assert "hydra_plugins/bench_launcher/launcher.py" in names and "hydra_plugins/__init__.py" not in names
 

@@ -28,3 +28,19 @@ def test_shortcut_configs_equal_hydras_for_every_job():
     assert len(jobs) == 16
     # one full composition per kind of job (problem x optimizer), and one more to check each kind
     assert composer.full == 2 * 4
+
+
+def test_top_level_keys_read_from_config_yaml_are_those_hydra_composes():
+    """compose_cache.top_level_keys skips a composition (~0.17 s a command) by reading config.yaml; it must
+    name exactly the keys the composed config has, or a valid override would be refused (or a typo let by)."""
+    from bench.run.compose_cache import top_level_keys
+
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3", job_name="preflight"):
+            composed = set(compose("config").keys())
+            assert top_level_keys(CONF_DIR, []) == composed
+            assert {"problem", "optimizer", "budget", "verdict", "instance"} <= composed
+            assert top_level_keys(CONF_DIR, [f"hydra.searchpath=[file://{CONF_DIR}]"]) == composed
+    finally:
+        GlobalHydra.instance().clear()
