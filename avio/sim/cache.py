@@ -32,8 +32,8 @@ CACHE_ENV = "AVIO_CACHE_DIR"
 FORMAT_VERSION = 1
 _AVIO = Path(__file__).resolve().parents[1]
 # what a simulated drive is built from: the simulator and the avio modules it imports
-_SOURCES = (*sorted((_AVIO / "sim").glob("*.py")), *(_AVIO / f"{name}.py" for name in
-                                                    ("calibration", "geometry", "sequence", "tracks", "errors")))
+_BUILT_FROM = ("calibration", "errors", "geometry", "reference", "sequence", "tracks")
+_SOURCES = (*sorted((_AVIO / "sim").glob("*.py")), *(_AVIO / f"{name}.py" for name in _BUILT_FROM))
 
 
 def cache_folder() -> Path | None:

@@ -96,3 +96,15 @@ def test_a_cached_drive_imports_no_spline(folder):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          env={**__import__("os").environ, cache.CACHE_ENV: str(folder.parent)})
     assert out.stdout.strip() == "[]"
+
+
+def test_the_code_part_of_the_key_reads_every_avio_module_a_drive_is_built_from():
+    """A simulated drive's avio modules (those a fresh simulation imports) are all in the key's sources,
+    so an edit to any of them makes a new entry."""
+    code = ("import sys; from avio.sim.simulator import SimConfig, simulate; "
+            "simulate(SimConfig.paper_540m(duration_s=8.0), 0); "
+            "print(' '.join(sorted(m.__file__ for n, m in sys.modules.items() if n.startswith('avio.') "
+            "and getattr(m, '__file__', None) and not n.endswith('__init__'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    used = {p for p in out.stdout.split() if not p.endswith("__init__.py")}
+    assert used and used <= {str(p) for p in cache._SOURCES}, used - {str(p) for p in cache._SOURCES}
