@@ -16,17 +16,17 @@ images have a cache of their own).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import pickle
 import tempfile
+from dataclasses import fields
 from importlib import metadata
 from pathlib import Path
 
-import numpy as np
-
 from avio.calibration import Calibration
-from avio.sequence import Sequence
+from avio.sequence import Sequence, content_hash
 
 CACHE_ENV = "AVIO_CACHE_DIR"
 FORMAT_VERSION = 1
@@ -46,6 +46,7 @@ def cache_folder() -> Path | None:
     return Path(root) / "drives"
 
 
+@functools.lru_cache(maxsize=1)
 def _code_digest() -> str:
     digest = hashlib.sha256()
     for path in _SOURCES:
@@ -58,13 +59,9 @@ def _code_digest() -> str:
 
 def drive_key(config, seed, true_calibration: Calibration | None, noise_seed) -> str:
     """Hex SHA-256 of everything a simulated drive depends on (module docstring)."""
-    digest = hashlib.sha256(f"v{FORMAT_VERSION}|{config!r}|{seed!r}|{noise_seed!r}|{_code_digest()}".encode())
-    if true_calibration is not None:
-        for name in ("fx_px", "fy_px", "cx_px", "cy_px", "R_cam_imu", "p_imu_cam_m", "time_offset_s"):
-            array = np.ascontiguousarray(getattr(true_calibration, name), dtype=float)
-            digest.update(f"{name}{array.shape}".encode())
-            digest.update(array.tobytes())
-    return digest.hexdigest()
+    arrays = [] if true_calibration is None else [getattr(true_calibration, f.name) for f in fields(Calibration)]
+    return content_hash(arrays, {"version": FORMAT_VERSION, "config": repr(config), "seed": repr(seed),
+                                 "noise_seed": repr(noise_seed), "code": _code_digest()})
 
 
 def simulate_cached(config, seed, true_calibration: Calibration | None = None, noise_seed=None) -> Sequence:
