@@ -72,8 +72,6 @@ class Settings(NamedTuple):
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
     #: J_f and G_f at the corrected pixels (Eqs. 35a-b), the step at most this long, px; 0: at the measured pixels
     correction_cap_px: float
-    #: J_f and G_f at the pixels' posterior mean (Eq. 35c), the step at most this long, px; 0: not there
-    posterior_cap_px: float = 0.0
 
 
 class Outputs(NamedTuple):

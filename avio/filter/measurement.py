@@ -185,30 +185,3 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
                 lo, hi = (15, 21) if k < 6 else ((21, 27) if k < 12 else (0, 15))
                 for j in range(lo, hi):
                     C[i, j] += f * G[k, j]
-
-
-@kernel_jit
-def remeasure_at_posterior(uv, Gp, z, ok, sigma_px, cap, fx, fy, cx, cy, t12, t13, J, G, ws):
-    """J (4, 12, F) and G (4, 6, F) of every feature with ok[f] taken again at its pixels' posterior
-    mean given the predicted pose, ``u - sigma^2 Gp_f^T z_f`` (docs/model.md, Eq. 35c), the step
-    shortened along itself to at most ``cap`` px (Eq. 35b); r is left as it is (the measured pixels').
-    uv (F, 3, 2) px; Gp (3, 6, F) the used residuals' pixel sensitivities and z (3, F) = S_f^-1 r_f,
-    both at the measured pixels; t12, t13 (3,) and ws's relative poses those of the last
-    :func:`measure` call of this filter and frame."""
-    R12, R13, R23, uc, JL, GL = ws.R12, ws.R13, ws.R23, ws.uc, ws.JL, ws.GL
-    a12, a13 = (t12[0], t12[1], t12[2]), (t13[0], t13[1], t13[2])
-    a23 = rot_t(R12, (a13[0] - a12[0], a13[1] - a12[1], a13[2] - a12[2]))
-    s2 = sigma_px * sigma_px
-    for f in range(uv.shape[0]):
-        if not ok[f]:
-            continue
-        norm2 = 0.0
-        for c in range(6):
-            step = s2 * (Gp[0, c, f] * z[0, f] + Gp[1, c, f] * z[1, f] + Gp[2, c, f] * z[2, f])
-            uc[c // 2, c % 2] = step
-            norm2 += step * step
-        scale = 1.0 if norm2 <= cap * cap else cap / np.sqrt(norm2)
-        for c in range(6):
-            uc[c // 2, c % 2] = uv[f, c // 2, c % 2] - scale * uc[c // 2, c % 2]
-        one_feature(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL, GL, False)
-        _copy_out(JL, GL, 1, 0, 1, J, G, f)

@@ -13,7 +13,7 @@ import numpy as np
 from avio.filter._linalg import copy2, matmul, so3_exp, solve
 from avio.filter._simd import kernel_jit
 from avio.filter.interface import NoiseWorkspace, OutlierWorkspace, UpdateWorkspace
-from avio.filter.measurement import measure, remeasure_at_posterior
+from avio.filter.measurement import measure
 from avio.filter.outliers import (
     cholesky_lanes,
     feature_innovations_into,
@@ -144,58 +144,6 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
 
 
 @kernel_jit
-def _candidates(r4, J4, G4, valid, moving, sigma_px, gain_limit2, r, J, Gp, ok, Rm, sd, Lm, ldR):
-    """The update's candidate features: the used rows (Eq. 29) of r4 (4, F), J4 (4, 12, F), G4 (4, 6, F)
-    into r (M, F), J (M, 12, F), Gp (M, 6, F) (features last, avio/filter/outliers.py), ok (F,) for
-    the valid features with finite rows and a transfer gain within the limit (Eq. 36), and the noise
-    model of each (Eq. 35, :func:`_noise_model`; a feature not ok gets zero rows and R_f = sigma^2 I).
-    Returns the number ok."""
-    d, F = 12, r.shape[1]
-    log_s2 = np.log(sigma_px * sigma_px)
-    # The used rows (Eq. 29), features last (avio/filter/outliers.py): every step below runs over all F
-    # features at once (SIMD); a feature's own operations are those of one feature alone.
-    for a in range(M):
-        u = USED_RESIDUALS[a]
-        for f in range(F):
-            r[a, f] = r4[u, f]
-        for b in range(d):
-            for f in range(F):
-                J[a, b, f] = J4[u, b, f]
-        for b in range(6):
-            for f in range(F):
-                Gp[a, b, f] = G4[u, b, f]
-    # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
-    for f in range(F):
-        ok[f] = valid[f] and moving
-    for a in range(M):
-        for f in range(F):
-            ok[f] &= np.isfinite(r[a, f])
-        for b in range(d):
-            for f in range(F):
-                ok[f] &= np.isfinite(J[a, b, f])
-        for b in range(6):
-            for f in range(F):
-                ok[f] &= np.isfinite(Gp[a, b, f])
-    _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR)  # all features; only those still ok keep it
-    n_ok = 0
-    # Eq. (36): the transfer gain, sqrt(R_f[i, i]) <= max_transfer_gain sigma on the transfer's rows.
-    for f in range(F):
-        ok[f] &= Rm[1, 1, f] <= gain_limit2 and Rm[2, 2, f] <= gain_limit2  # the transfer's rows
-        n_ok += ok[f]
-    for f in range(F):
-        if not ok[f]:
-            ldR[f] = M * log_s2
-            for a in range(M):
-                r[a, f] = 0.0
-                sd[a, f] = sigma_px
-                for b in range(d):
-                    J[a, b, f] = 0.0
-                for b in range(M):
-                    Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
-    return n_ok
-
-
-@kernel_jit
 def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
     covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
@@ -246,11 +194,49 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)
     moving = b12 > min_parallax_m and b23 > min_parallax_m
     n_valid = 0
-    for f in range(F):
-        n_valid += valid[f]
     gain_limit2 = (max_transfer_gain * sigma_px) ** 2
     log_s2 = np.log(sigma_px * sigma_px)
-    n_ok = _candidates(r4, J4, G4, valid, moving, sigma_px, gain_limit2, r, J, Gp, ok, Rm, sd, Lm, ldR)
+    # The used rows (Eq. 29), features last (avio/filter/outliers.py): every step below runs over all F
+    # features at once (SIMD); a feature's own operations are those of one feature alone.
+    for a in range(M):
+        u = USED_RESIDUALS[a]
+        for f in range(F):
+            r[a, f] = r4[u, f]
+        for b in range(d):
+            for f in range(F):
+                J[a, b, f] = J4[u, b, f]
+        for b in range(6):
+            for f in range(F):
+                Gp[a, b, f] = G4[u, b, f]
+    # Degenerate geometry (a point at the epipole, a wild candidate) is non-finite.
+    for f in range(F):
+        n_valid += valid[f]
+        ok[f] = valid[f] and moving
+    for a in range(M):
+        for f in range(F):
+            ok[f] &= np.isfinite(r[a, f])
+        for b in range(d):
+            for f in range(F):
+                ok[f] &= np.isfinite(J[a, b, f])
+        for b in range(6):
+            for f in range(F):
+                ok[f] &= np.isfinite(Gp[a, b, f])
+    _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR)  # all features; only those still ok keep it
+    n_ok = 0
+    # Eq. (36): the transfer gain, sqrt(R_f[i, i]) <= max_transfer_gain sigma on the transfer's rows.
+    for f in range(F):
+        ok[f] &= Rm[1, 1, f] <= gain_limit2 and Rm[2, 2, f] <= gain_limit2  # the transfer's rows
+        n_ok += ok[f]
+    for f in range(F):
+        if not ok[f]:
+            ldR[f] = M * log_s2
+            for a in range(M):
+                r[a, f] = 0.0
+                sd[a, f] = sigma_px
+                for b in range(d):
+                    J[a, b, f] = 0.0
+                for b in range(M):
+                    Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
     # symmetric), Sigma = C P C^T (symmetrised; Eq. 37).
     matmul(C, Pi, CP)
@@ -262,16 +248,10 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
         for b in range(a):
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
-    # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
-    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, o_.Lp, o_.S, o_.L, o_.y)
-    if cfg.posterior_cap_px > 0.0:
-        # Eq. (35c): J_f, G_f (so R_f and S_f) again at the pixels' posterior mean given the prediction.
-        remeasure_at_posterior(uv, Gp, z, ok, sigma_px, cfg.posterior_cap_px, cal.fx[i], cal.fy[i], cal.cx[i],
-                               cal.cy[i], t12, t13, J4, G4, ws.measure)
-        n_ok = _candidates(r4, J4, G4, valid, moving, sigma_px, gain_limit2, r, J, Gp, ok, Rm, sd, Lm, ldR)
-        feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, o_.Lp, o_.S, o_.L, o_.y)
     for f in range(F):
         inl[f] = ok[f]
+    # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
+    feature_innovations_into(r, J, Sig, Rm, HP, z, ldS, o_.Lp, o_.S, o_.L, o_.y)
     # The score (avio/objectives.py; Eq. 46): every valid feature's own innovation likelihood, its
     # squared Mahalanobis distance capped at the gate, whatever the update does with it.
     nll = 0.0

@@ -9,7 +9,7 @@ import numpy as np
 
 from avio.filter._linalg import corrected_pixels
 from avio.filter.interface import Calibrations, FilterState, Settings, UpdateWorkspaces
-from avio.filter.measurement import measure, measure_workspace, remeasure_at_posterior
+from avio.filter.measurement import measure, measure_workspace
 from avio.filter.update import (
     MODE_NONE,
     NOISE_FLOOR,
@@ -151,58 +151,3 @@ def test_the_score_at_the_true_pose_loses_its_bias_with_the_jacobian_at_the_corr
     # noise (217 here); corrected: no bias the 1000 draws can see (10 here)
     assert chi2_m > 100 and z_m > 0.1
     assert chi2_c < 32.9 and abs(z_c) < 0.1 * z_m
-
-
-def test_posterior_pixels_move_by_sigma_squared_g_transpose_s_inverse_r_and_remeasure_there():
-    """Eq. (35c): remeasure_at_posterior takes J, G again at u - sigma^2 G^T S^-1 r (its step capped
-    as in Eq. 35b), the features not ok untouched."""
-    rng = np.random.default_rng(7)
-    Rs, ps, _, clean = _scene(rng, F=10, noise_px=0.0)
-    uv = clean + rng.normal(0, 1.0, clean.shape)
-    F, sigma, rows = uv.shape[0], 0.8, list(USED_RESIDUALS)
-    r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
-    C, t12, t13, ws = np.empty((12, 27)), np.empty(3), np.empty(3), measure_workspace()
-    measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
-            np.zeros(3), uv, r4, J4, G4, C, t12, t13, ws, False)
-    Gp = np.ascontiguousarray(G4[rows])
-    z = np.empty((3, F))
-    for f in range(F):  # an innovation covariance with a pose share: S = sigma^2 G G^T + W W^T
-        W = rng.normal(0, 0.7, (3, 3))
-        z[:, f] = np.linalg.solve(sigma**2 * Gp[:, :, f] @ Gp[:, :, f].T + W @ W.T, r4[rows, f])
-    ok = np.ones(F, np.bool_)
-    ok[3] = False
-    J4p, G4p = J4.copy(), G4.copy()
-    cap = 1.2
-    remeasure_at_posterior(uv, Gp, z, ok, sigma, cap, *INTRINSICS, t12, t13, J4p, G4p, ws)
-    steps = sigma**2 * np.einsum("acf,af->fc", Gp, z).reshape(F, 3, 2)
-    lengths = np.linalg.norm(steps.reshape(F, 6), axis=1)
-    assert lengths.max() > cap > lengths.min()  # both sides of the cap are exercised
-    target = uv - steps * np.minimum(1.0, cap / lengths)[:, None, None]
-    _, J4t, G4t = _measured(Rs, ps, target)
-    keep = np.arange(F) != 3
-    np.testing.assert_allclose(J4p[..., keep], J4t[..., keep], rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(G4p[..., keep], G4t[..., keep], rtol=1e-9, atol=1e-12)
-    assert np.array_equal(J4p[..., 3], J4[..., 3]) and np.array_equal(G4p[..., 3], G4[..., 3])
-    assert not np.allclose(J4p[..., keep], J4[..., keep])  # it did move them
-
-
-def test_the_posterior_pixels_error_is_uncorrelated_with_the_innovation_where_sampsons_is_not():
-    """Eq. (35c) against (35a) on the linearised measurement r = G n + H x (pixel noise n, pose error x
-    drawn from the filter's covariance): the error left in the corrected pixels, n - step(r), has zero
-    covariance with r for the posterior step and not for Sampson's, which lays the pose's share on
-    the pixels."""
-    rng = np.random.default_rng(11)
-    sigma, draws = 0.7, 20000
-    G = np.c_[rng.normal(0, 0.5, (3, 4)), np.r_[np.zeros((1, 2)), np.eye(2)]]  # the shape of Eq. (34)
-    H = rng.normal(0, 1.0, (3, 12))
-    L = rng.normal(0, 0.3, (12, 12))
-    n = rng.normal(0, sigma, (draws, 6))
-    x = rng.normal(0, 1.0, (draws, 12)) @ L.T
-    r = n @ G.T + x @ H.T
-    S = sigma**2 * G @ G.T + H @ L @ L.T @ H.T
-    errors = {"posterior": n - r @ np.linalg.solve(S, sigma**2 * G),
-              "sampson": n - r @ np.linalg.solve(G @ G.T, G)}
-    cov = {k: (e - e.mean(0)).T @ (r - r.mean(0)) / draws for k, e in errors.items()}
-    scale = sigma * np.sqrt(np.diag(S)).max()
-    assert np.abs(cov["posterior"]).max() < 0.03 * scale
-    assert np.abs(cov["sampson"]).max() > 0.3 * scale
