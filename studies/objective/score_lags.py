@@ -43,7 +43,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
-from information_equality import A7, STEP, VARS, typical
+from information_equality import A7, STEP, VARS, tilt_line, typical
 from minimiser_scatter import derivatives, design
 from objective_bias import DRIVE, FRESH_SEED0
 
@@ -181,10 +181,8 @@ def report(data: dict, rng) -> list[str]:
     G = np.cov(g.sum(axis=1).T)
     lines.append("one drive's minimiser scatter (sandwich sqrt diag H⁻¹GH⁻¹; px, deg, m): "
                  + ", ".join(f"{n} {v:.3g}" for n, v in zip(names, np.sqrt(np.diag(Hinv @ G @ Hinv)))))
-    total = g8.sum(axis=1)  # every drive's score, for the tilt
-    t = total.mean(axis=0) / (total.std(axis=0, ddof=1) / np.sqrt(len(total)))
     tnames = VARS if g8.shape[-1] == 8 else names
-    lines.append("mean drive score at the truth, t (all drives): " + ", ".join(f"{n} {v:+.1f}" for n, v in zip(tnames, t)))
+    lines.append(tilt_line(g8.sum(axis=1), keep, tnames))  # every drive's score, for the tilt
     return lines
 
 

@@ -30,6 +30,26 @@ def test_drives_with_wild_curvatures_are_not_typical(load_script):
     assert not keep[3] and not keep[7] and keep.sum() == 28
 
 
+def test_a_tilt_hidden_by_a_few_rough_drives_is_found_and_no_tilt_is_not_declared(load_script):
+    # the corrected likelihood's fy (docs/decisions.md): every typical drive leans one way, a few
+    # drives' scores are 100x the others' and swamp the t over all drives
+    module = load_script("information_equality")
+    rng = np.random.default_rng(2)
+    D = 100
+    lean = 0.09 + 0.06 * rng.standard_normal(D)
+    lean[[5, 40]] = [-45.0, 30.0]  # two rough drives
+    null = 0.06 * rng.standard_normal(D)
+    null[[5, 40]] = [-45.0, 30.0]
+    keep = np.ones(D, bool)
+    keep[[5, 40]] = False
+    s = module.tilt(np.stack([lean, null], axis=1), keep)
+    assert abs(s["t_all"][0]) < 3  # the plain t misses it
+    assert s["t_typical"][0] > 8 and s["p_wilcoxon"][0] < 1e-6  # both robust tests find it
+    assert abs(s["t_typical"][1]) < 3 and s["p_wilcoxon"][1] > 0.01  # and neither invents one
+    line = module.tilt_line(np.stack([lean, null], axis=1), keep, ("fy", "cx"))
+    assert line.startswith("mean drive score at the truth") and "fy " in line and "cx " in line
+
+
 def test_profile_follows_one_drive_along_one_variable(load_script):
     module = load_script("information_equality")
     lines = module.profile(0, 0, "fx", n=3, worst=2)

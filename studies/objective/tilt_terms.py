@@ -1,0 +1,188 @@
+"""Which term of the joint likelihood's score tilts it at the truth along fy? (issue 33)
+
+Each update's joint NLL is ``l = 1/2 (r^T S^-1 r + log det S)`` (docs/model.md, Eq. 55a) with the
+residuals r and ``S = J Sigma J^T + R`` taken at the filter's estimated relative poses. Along one
+intrinsic theta its total derivative (each calibration its own filter run) splits exactly into
+
+- ``A = 1/2 d log det S``: the model's variance growing with theta;
+- ``B = -1/2 r^T S^-1 dS S^-1 r``: the NIS's answer to it; ``E[B] = -E[A]`` where the residuals'
+  covariance is S in the directions dS weights;
+- ``C = dr^T S^-1 r``: the residuals' own change correlated with them; ``E[C] = 0`` where the
+  innovations are zero-mean given the past (dr is a function of the past and of the calibration).
+
+C is then split by where dr is taken: ``C_direct`` (the intrinsics moved, this run's estimated
+poses held) and ``C_reach`` (the poses moved to the other runs', the intrinsics held); and
+C_direct's dr taken instead at the noise-free pixels (the drive simulated again without pixel
+noise: does the pixels' noise make it?), at the true poses (does the pose estimate's error make
+it?), and at the true poses but for one block of the relative pose's error (psi12, dt12 per axis,
+psi13, dt13 per axis; which error?). Each with the residuals r and S of the truth run.
+
+Fresh ``paper_540m`` drives (cameras ``--seeds``, drives ``(s, 100 + i)``), imposed decisions
+(``reference_all``), the filter's measured-pixel Jacobians unless ``--filter`` says otherwise
+(the reconstruction re-computes the default kernel's update NLL; it prints the largest difference),
+central differences of +-1.5 px. Per drive the terms summed over the update frames; printed: the
+mean over drives, its SE, t and the signed-rank p.
+
+    python studies/objective/tilt_terms.py [--seeds 0 1 2 3 4] [--drives 4] [--var fy] [--sim JSON] [--save F.npz]
+
+About 1 min of CPU per drive. Results: studies/objective/README.md, "the fy tilt's term".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "studies" / "objective"))
+
+from feature_information import USED
+from objective_bias import FRESH_SEED0
+from pose_linearisation import _problem, perturbed, pose_error, relative_poses
+from scipy.stats import wilcoxon
+from score_lags import sim_config
+
+from avio.filter.batch import run, set_threads
+from avio.filter.prepare import prepare
+from avio.filter.trifocal import feature_residuals
+from avio.filter.update import NOISE_FLOOR
+from avio.sim.simulator import simulate
+
+STEP_PX = 1.5
+#: the relative pose's error blocks (pose_error's order: psi12, dt12, psi13, dt13)
+BLOCKS = {"psi12": [0, 1, 2], "dt12_x": [3], "dt12_y": [4], "dt12_z": [5], "psi13": [6, 7, 8],
+          "dt13_x": [9], "dt13_y": [10], "dt13_z": [11]}
+TERMS = ("A", "B", "C", "C_direct", "C_reach", "C_direct_clean_pixels", "C_direct_true_poses",
+         "C_direct_r_noise", "C_direct_r_pose", "C_direct_r_pose_linear",
+         *(f"C_direct_error_{b}" for b in BLOCKS), "kernel_total")
+
+
+def residuals(uv: np.ndarray, poses: tuple, intrinsics: np.ndarray, sigma: float,
+              Sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The update's used residuals r (m F,), ``S = J Sigma J^T + R`` (m F, m F) and J (m F, 12) of the features
+    uv (F, 3, 2) at the relative poses (R12, t12, R13, t13; Eq. 21) and intrinsics (fx, fy, cx, cy),
+    R block-diagonal over features (Eq. 35, at uv)."""
+    R12, t12, R13, t13 = poses
+    R23, t23 = R12.T @ R13, R12.T @ (t13 - t12)
+    r4, J4, G4 = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
+    m, F = len(USED), len(uv)
+    r, J, R = np.empty(m * F), np.empty((m * F, 12)), np.zeros((m * F, m * F))
+    for f in range(F):
+        feature_residuals(uv[f], R12, tuple(t12), R13, tuple(t13), R23, tuple(t23), *intrinsics, r4, J4, G4, False)
+        rows = slice(f * m, (f + 1) * m)
+        r[rows], J[rows] = r4[USED], J4[USED]
+        G = G4[USED]
+        R[rows, rows] = sigma**2 * (G @ G.T) + (NOISE_FLOOR * sigma) ** 2 * np.eye(m)
+    return r, R + J @ Sigma @ J.T, J
+
+
+def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict,
+                every: int = 1) -> dict[str, float] | None:
+    """Per term (TERMS), its sum over the update frames of one fresh drive (every ``every``-th); the
+    reconstruction's largest difference from the kernel's update NLL (``check``); None when a
+    filter diverged."""
+    sigma = float(filter_options.get("pixel_sigma_px", 0.7))
+    problem = _problem(seed, sigma, {k: v for k, v in filter_options.items() if k != "pixel_sigma_px"})
+    camera, cfg = problem.sequence.truth_calibration, problem.filter_config
+    base = np.array([camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0]])
+    rows = np.repeat(base[None], 3, axis=0)
+    col = ("fx", "fy", "cx", "cy").index(var)
+    rows[0, col] -= STEP_PX
+    rows[2, col] += STEP_PX
+    batch = camera.repeat(3)
+    batch = type(camera)(**{**batch.__dict__, "fx_px": rows[:, 0], "fy_px": rows[:, 1], "cx_px": rows[:, 2],
+                            "cy_px": rows[:, 3]})
+    drive = simulate(sim_config({**sim, "pixel_noise_px": sim.get("pixel_noise_px", 0.7)}),
+                     (seed, FRESH_SEED0 + index), true_calibration=camera)
+    clean = simulate(sim_config({**sim, "pixel_noise_px": 0.0}), (seed, FRESH_SEED0 + index), true_calibration=camera)
+    prep = prepare(drive, cfg)
+    res = run(drive, batch, cfg, prepared=prep, record_used=True)
+    if res.diverged.any():
+        return None
+    Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
+    noisy_tracks, clean_tracks = drive.tracks.uv_px, clean.tracks.uv_px
+    trip_of = {int(k): j for j, k in enumerate(drive.tracks.frame_index)}
+    out = dict.fromkeys(TERMS, 0.0)
+    check = 0.0
+    h2 = 2 * STEP_PX
+
+    def q(r, S):
+        return 0.5 * r @ np.linalg.solve(S, r)
+
+    def ld(S):
+        return 0.5 * np.linalg.slogdet(S)[1]
+
+    for k in np.nonzero(res.dof[1] > 0)[0][::every]:
+        uv = prep.uv_px[prep.triplet_of_frame[k]][res.used[1, prep.triplet_of_frame[k]]]
+        # the same features' noise-free pixels: the prepared slots matched to the drive's tracks
+        tj = trip_of[int(k)]
+        match = [int(np.nonzero(np.all(noisy_tracks[tj] == u, axis=(1, 2)))[0][0]) for u in uv]
+        uv_clean = clean_tracks[tj][match]
+        est = [relative_poses(res.update_poses[p, k][:, :3, :], res.update_poses[p, k][:, 3, :], Rci, pic)
+               for p in range(3)]
+        t3 = k + np.array([-2, -1, 0])
+        true = relative_poses(drive.truth.R_world_imu[t3], drive.truth.p_world_imu_m[t3], Rci, pic)
+        delta = pose_error(est[1], true)
+
+        def at(p_int, poses, p_cov=1, pixels=uv):
+            return residuals(pixels, poses, rows[p_int], sigma, res.pose_cov[p_cov, k])
+
+        (rm, Sm, _), (r1, S1, J1), (rp, Sp, _) = at(0, est[0], 0), at(1, est[1]), at(2, est[2], 2)
+        r_true = at(1, true)[0]  # the residuals at the true poses: the pixels' noise alone
+        w = np.linalg.solve(S1, r1)
+
+        def dr(poses, pixels=uv):  # the residuals' derivative along var, this run's Sigma
+            return (at(2, poses, pixels=pixels)[0] - at(0, poses, pixels=pixels)[0]) / h2
+
+        terms = {"A": (ld(Sp) - ld(Sm)) / h2, "B": (q(r1, Sp) - q(r1, Sm)) / h2, "C": (q(rp, S1) - q(rm, S1)) / h2,
+                 "C_direct": dr(est[1]) @ w, "C_reach": (at(1, est[2])[0] - at(1, est[0])[0]) / h2 @ w,
+                 "C_direct_clean_pixels": dr(est[1], uv_clean) @ w, "C_direct_true_poses": dr(true) @ w}
+        # C_direct split by the residuals' parts: the pixels' noise, the pose error's, and that
+        # part to first order (J's convention: dr = -J d, d = pose_error's true - estimate)
+        Sinv_dr = np.linalg.solve(S1, dr(est[1]))
+        terms |= {"C_direct_r_noise": Sinv_dr @ r_true, "C_direct_r_pose": Sinv_dr @ (r1 - r_true),
+                  "C_direct_r_pose_linear": Sinv_dr @ (J1 @ delta)}
+        for name, idx in BLOCKS.items():
+            mask = np.zeros(12)
+            mask[idx] = 1.0
+            one = perturbed(*true, (delta * mask)[None])
+            terms[f"C_direct_error_{name}"] = dr(tuple(a[0] for a in one[:4])) @ w
+        kernel = 0.5 * (res.nis[:, k] + res.log_det_S[:, k])
+        terms["kernel_total"] = (kernel[2] - kernel[0]) / h2
+        check = max(check, abs(q(r1, S1) + ld(S1) - kernel[1]))
+        for name, v in terms.items():
+            out[name] += float(v)
+    out["check"] = check
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras (data seeds)")
+    parser.add_argument("--drives", type=int, default=4, help="fresh drives per camera")
+    parser.add_argument("--var", default="fy", choices=["fx", "fy", "cx", "cy"])
+    parser.add_argument("--sim", type=json.loads, default={}, help="SimConfig overrides as JSON (score_lags.py's)")
+    parser.add_argument("--filter", type=json.loads, default={}, help="FilterConfig overrides as JSON")
+    parser.add_argument("--save", type=Path, help="write the per-drive terms (.npz)")
+    args = parser.parse_args(argv)
+    set_threads(1)
+    per_drive = [t for s in args.seeds for i in range(args.drives)
+                 if (t := drive_terms(s, i, args.var, args.sim, args.filter)) is not None]
+    if args.save:
+        np.savez(args.save, **{k: np.array([d[k] for d in per_drive]) for k in (*TERMS, "check")})
+    print(f"sim {args.sim or 'default'}, filter {args.filter or 'default'}: {len(per_drive)} drives, d/d{args.var} "
+          f"(nats per px per drive); reconstruction's largest difference {max(d['check'] for d in per_drive):.1e} nats")
+    print("| term | mean | SE | t | signed-rank p |\n|---|---|---|---|---|")
+    for k in TERMS:
+        x = np.array([d[k] for d in per_drive])
+        se = x.std(ddof=1) / np.sqrt(len(x))
+        print(f"| {k} | {x.mean():+.4f} | {se:.4f} | {x.mean() / se:+.1f} | {wilcoxon(x).pvalue:.2g} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,20 @@
+"""studies/objective/tilt_terms.py: the reconstruction re-computes the kernel's update NLL, and the
+three terms add up to the kernel's own score."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def test_the_terms_add_up_to_the_kernels_score_and_the_blocks_to_the_pose_errors_share(load_script):
+    module = load_script("tilt_terms")
+    t = module.drive_terms(0, 0, "fy", {}, {}, every=40)
+    assert t is not None and t["check"] < 1e-8
+    # A + B + C is the total derivative to first order in the step (cross terms are O(h^2))
+    parts = t["A"] + t["B"] + t["C"]
+    scale = abs(t["A"]) + abs(t["B"]) + abs(t["C"])
+    assert abs(parts - t["kernel_total"]) < 0.05 * scale
+    assert abs(t["C_direct"] + t["C_reach"] - t["C"]) < 0.05 * scale
+    # the residuals are linear enough in the pose error that its blocks' shares add up
+    blocks = sum(t[f"C_direct_error_{b}"] - t["C_direct_true_poses"] for b in module.BLOCKS)
+    assert np.isclose(blocks, t["C_direct"] - t["C_direct_true_poses"], rtol=0.2, atol=0.02 * scale)
