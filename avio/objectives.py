@@ -44,6 +44,14 @@
   every filter, so that the objective is smooth in the calibration; with the filters' own
   decisions a rejected feature pays the cap instead of its joint term.
 
+- ``innovation_nll_adjusted``: :func:`innovation_nll_joint` with ``adjusted=True``, each update's
+  term plus ``1/2 tr(S^-1 R)`` (docs/model.md, Eq. 55b; ``FilterResult.pose_trace``). The joint
+  likelihood is exact when the trajectory is random about the filter's estimate; a drive has one
+  fixed trajectory and the estimate is what is random, and where the calibration scales how a
+  pose error moves the residuals (fy) its score at the truth has the mean
+  ``tr(M^T S^-1 J Sigma)`` (M = dJ/dtheta), a tilt the added term cancels
+  (studies/objective/README.md, "the fy tilt's term").
+
 A diverged filter gets ``penalty * (2 - k_div / N)`` under either objective (the worst over the
 drives; Eqs. 52-53), finite and worse the earlier it diverged.
 """
@@ -55,7 +63,7 @@ import numpy as np
 from avio.filter.update import LOG_2PI, M
 from avio.metrics import position_rmse_objective
 
-OBJECTIVES = ("position_rmse", "innovation_nll", "innovation_nll_joint")
+OBJECTIVES = ("position_rmse", "innovation_nll", "innovation_nll_joint", "innovation_nll_adjusted")
 #: frames whose triplet moves less in the image than this (median over features, pixels from
 #: image 1 to image 3) are not scored by :func:`innovation_nll` (module docstring); moving
 #: drives show tens of pixels, the braking frames before the default drive's stop 1-2.3 px.
@@ -122,17 +130,19 @@ def unused_feature_nll(sigma_px: float, chi2_threshold: float) -> float:
     return 0.5 * (chi2_threshold + M * np.log(sigma_px * sigma_px) + M * LOG_2PI)
 
 
-def innovation_nll_joint(results, penalty: float, unused_nll: float, scored=None) -> np.ndarray:
+def innovation_nll_joint(results, penalty: float, unused_nll: float, scored=None, adjusted: bool = False) -> np.ndarray:
     """(n,) the joint innovation NLL per residual pooled over the drives (module docstring;
     docs/model.md, Eq. 55a). unused_nll: :func:`unused_feature_nll` of the filter's settings
     (nats per unused feature); scored: per drive the (N,) :func:`scored_frames` (None: every
-    frame)."""
+    frame); adjusted: each update's term plus ``1/2 tr(S^-1 R) = 1/2 (dof - pose_trace)`` (Eq. 55b)."""
     scored = [None] * len(results) if scored is None else scored
     nll = 0.0
     slots = 0
     for r, m in zip(results, scored):
         # Eq. (55a): the joint term of the used residuals (Eqs. 44-45) and the cap of the unused slots.
         frame = 0.5 * (r.nis + r.log_det_S + r.dof * LOG_2PI) + (r.nll_slots - r.dof) / M * unused_nll
+        if adjusted:  # Eq. (55b): + 1/2 tr(S^-1 R), whose mean slope cancels the pose error's coupling
+            frame = frame + 0.5 * (r.dof - r.pose_trace)
         keep = np.ones(r.nis.shape[1], bool) if m is None else m
         nll = nll + np.where(keep, frame, 0.0).sum(axis=1)
         slots = slots + np.where(keep, r.nll_slots, 0).sum(axis=1)

@@ -65,7 +65,7 @@ EVERY_FRAME = {"propagation": (699, 0, 0), "covariance prediction": (7308, 0, 0)
                "divergence test": (750, 0, 0)}
 UPDATE = {"measurement": (2178, 963, 0), "noise model": (1, 105, 0), "C P and Sigma": (8556, 0, 0),
           "innovations": (662, 657, 0), "score": (0, 10, 0), "RANSAC": (0, 75, 63), "gate": (0, 6, 0),
-          "information sum": (0, 1060, 0), "gain": (9130, 0, 0), "downdate": (18936, 0, 0),
+          "information sum": (0, 1060, 0), "gain": (9418, 0, 0), "downdate": (18936, 0, 0),
           "injection": (324, 0, 0), "update, selection": (18, 0, 0)}
 
 

@@ -192,7 +192,8 @@ def _outputs(n: int, N: int, used_shape: tuple) -> Outputs:
 
     return Outputs(p=np.empty((n, N, 3)), R=np.empty((n, N, 3, 3)), v=np.empty((n, N, 3)), sigma=np.empty((n, N, 15)),
                    ba=np.empty((n, N, 3)), bg=np.empty((n, N, 3)), n_updates=i64(), n_outliers=i64(),
-                   diverged_at=np.empty(n, np.int64), nis=np.empty((n, N)), log_det_S=np.empty((n, N)), dof=i64(),
+                   diverged_at=np.empty(n, np.int64), nis=np.empty((n, N)), log_det_S=np.empty((n, N)),
+                   pose_trace=np.empty((n, N)), dof=i64(),
                    nll=np.empty((n, N)), nll_slots=i64(), used=np.zeros(used_shape, np.uint8),
                    pose_cov=np.zeros((used_shape[0], N, 12, 12)), update_poses=np.zeros((used_shape[0], N, 3, 4, 3)))
 
@@ -285,4 +286,5 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
                         used=o.used.astype(bool) if record_used else None,
                         pose_cov=o.pose_cov if record_used else None,
                         update_poses=o.update_poses if record_used else None,
+                        pose_trace=o.pose_trace,
                         meta={"config": result_config})

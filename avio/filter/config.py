@@ -192,6 +192,8 @@ class FilterResult:
         (the clones, at their exposure times) and k (predicted, at the frame time: Eq. 19's time
         shift is applied after), rows 0-2 R_world_imu and row 3
         p_world_imu (m); only with ``record_used``, zero where no trifocal update ran.
+    pose_trace (n, N): the pose's share of each update's S, ``tr(J^T S^-1 J Sigma) = dof - tr(S^-1 R)``
+        (docs/model.md, Eq. 55b; the adjusted likelihood's term), zero where no trifocal update ran.
     """
 
     p_world_imu_m: np.ndarray
@@ -212,4 +214,5 @@ class FilterResult:
     used: np.ndarray | None = None
     pose_cov: np.ndarray | None = None
     update_poses: np.ndarray | None = None
+    pose_trace: np.ndarray | None = None
     meta: dict = field(default_factory=dict)

@@ -88,6 +88,7 @@ class Outputs(NamedTuple):
     diverged_at: np.ndarray  #: (n,) int64 frame of the divergence, -1 for none
     nis: np.ndarray  #: (n, N) NIS of the update (Eq. 44)
     log_det_S: np.ndarray  #: (n, N) log det S of the update (Eq. 45)
+    pose_trace: np.ndarray  #: (n, N) tr(J^T S^-1 J Sigma), the pose's share of S (Eq. 55b)
     dof: np.ndarray  #: (n, N) int64 residual count of the update
     nll: np.ndarray  #: (n, N) NLL contribution of the update (Eq. 46)
     nll_slots: np.ndarray  #: (n, N) int64 residual slots it covers

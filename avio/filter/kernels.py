@@ -298,10 +298,11 @@ def _run_range(lo, hi, seq, cal, cfg, out, uws, pws, zws, fws):
                 decided = out.used[i, j] if record else no_record
                 if record:
                     _record_poses(out.update_poses[i, k], x)
-                used, rej, nis, ldS, dof, nll, slots = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg, uws,
-                                                              record, decided)
+                used, rej, nis, ldS, dof, nll, slots, trace = update(x, omega, cal, i, seq.uv[j], seq.valid[j], cfg,
+                                                                     uws, record, decided)
                 out.n_updates[i, k], out.n_outliers[i, k] = used, rej
                 out.nis[i, k], out.log_det_S[i, k], out.dof[i, k] = nis, ldS, dof
+                out.pose_trace[i, k] = trace
                 out.nll[i, k], out.nll_slots[i, k] = nll, slots
                 if record:
                     copy2(out.pose_cov[i, k], uws.update.Sig)
@@ -344,6 +345,7 @@ def _clear_updates(out, i, record):
     out.n_outliers[i, :] = 0
     out.nis[i, :] = 0.0
     out.log_det_S[i, :] = 0.0
+    out.pose_trace[i, :] = 0.0
     out.dof[i, :] = 0
     out.nll[i, :] = 0.0
     out.nll_slots[i, :] = 0
@@ -360,6 +362,7 @@ def _clear_update(out, i, k, j, record):
     out.n_outliers[i, k] = 0
     out.nis[i, k] = 0.0
     out.log_det_S[i, k] = 0.0
+    out.pose_trace[i, k] = 0.0
     out.dof[i, k] = 0
     out.nll[i, k] = 0.0
     out.nll_slots[i, k] = 0

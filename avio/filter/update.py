@@ -164,10 +164,11 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     The same factors give the innovation likelihood of the update (avio/objectives.py):
     ``NIS = r^T S^-1 r = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta`` (Woodbury, ``beta =
     J^T R^-1 r``) and ``log det S = log det R + log det(I + A Sigma)``.
-    Returns (used, rejected, nis, log_det_S, dof, nll, slots): the numbers of features used and
-    rejected, the update's NIS, log det S and residual count, its NLL contribution with the
-    capped terms of the valid features it did not use, and the residual slots (M = 3 per valid
-    feature). With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
+    Returns (used, rejected, nis, log_det_S, dof, nll, slots, pose_trace): the numbers of features
+    used and rejected, the update's NIS, log det S and residual count, its NLL contribution with the
+    capped terms of the valid features it did not use, the residual slots (M = 3 per valid
+    feature) and the pose's share of S, ``tr(J^T S^-1 J Sigma) = dof - tr(S^-1 R)`` (Eq. 55b).
+    With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
     ws: interface.UpdateWorkspaces of :func:`update_workspace`, measure_workspace,
     :func:`noise_workspace` and :func:`outlier_workspace` (nothing is allocated here).
     After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
@@ -334,6 +335,11 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
         for b in range(d):
             acc += Sig[a, b] * X[b, d]
         nis -= beta[a] * acc
+    # Eq. (55b): the pose's share of S, tr(J^T S^-1 J Sigma) = tr((I + A Sigma)^-1 A Sigma).
+    pose_trace = 0.0
+    for a in range(d):
+        for b in range(d):
+            pose_trace += X[a, b] * Sig[b, a]
     dof = M * used
     # Eq. (41): dx = P C^T (I + A Sigma)^-1 beta.
     for a in range(27):
@@ -364,4 +370,4 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
             Pi[c, a] = Pi[a, c]
     # Eq. (8): the injection.
     inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)
-    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid
+    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid, pose_trace

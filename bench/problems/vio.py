@@ -17,6 +17,8 @@ Objectives (``objective=``), all batched and pooled over the calibration drives:
   per-feature marginal likelihoods.
 - ``innovation_nll_joint``: the joint likelihood of each update's stacked innovations with
   their full covariance (avio.objectives.innovation_nll_joint), per residual.
+- ``innovation_nll_adjusted``: the joint likelihood with each update's ``1/2 tr(S^-1 R)`` added,
+  which cancels its tilt at the truth along fy (avio.objectives, docs/model.md Eq. 55b).
 
 Both likelihoods default to imposed decisions, ``filter: {outlier_decisions: reference_all}``
 (:data:`LIKELIHOOD_FILTER_DEFAULTS`; ``filter: {outlier_decisions: own}`` restores the filters' own):
@@ -352,8 +354,11 @@ class VioProblem:
         scored = [self._scored_frames(s) for s in drives]
         nll, nis_per_dof = innovation_nll(results, penalty, scored)
         c = self.filter_config
-        joint = innovation_nll_joint(results, penalty, unused_feature_nll(c.pixel_sigma_px, c.chi2_threshold), scored)
-        f = {"position_rmse": rmse, "innovation_nll": nll, "innovation_nll_joint": joint}[self.objective]
+        unused = unused_feature_nll(c.pixel_sigma_px, c.chi2_threshold)
+        joint = innovation_nll_joint(results, penalty, unused, scored)
+        adjusted = innovation_nll_joint(results, penalty, unused, scored, adjusted=True)
+        f = {"position_rmse": rmse, "innovation_nll": nll, "innovation_nll_joint": joint,
+             "innovation_nll_adjusted": adjusted}[self.objective]
         errors = [pose_errors(r, s.truth) for r, s in zip(results, drives)]
         frames = np.array([s.n_frames for s in drives], float)
 

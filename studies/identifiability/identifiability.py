@@ -146,7 +146,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     return ordered(pd.DataFrame(rows))
 
 
-OBJECTIVE_ORDER = ("position_rmse", "innovation_nll", "innovation_nll_joint")
+OBJECTIVE_ORDER = ("position_rmse", "innovation_nll", "innovation_nll_joint", "innovation_nll_adjusted")
 
 
 def ordered(summary: pd.DataFrame) -> pd.DataFrame:

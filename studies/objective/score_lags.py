@@ -23,7 +23,7 @@ central differences in the flat-city variables, dy, dz at the truth), but per up
 apart (the mean score's t per variable); the split is taken in the 7 free variables (f = fx = fy).
 Results: studies/objective/README.md, "where the excess comes from".
 
-    python studies/objective/score_lags.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--save F.npz | --load F.npz]
+    python studies/objective/score_lags.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--adjusted] [--save F.npz | --load F.npz]
 
 About 2.6 s of CPU per drive on one thread (129 calibrations of a 78 s drive); 100 drives ~4.5 min.
 """
@@ -58,10 +58,13 @@ from bench.problems.synthetic import Synthetic
 BANDS = ((0, 0), (1, 2), (3, 10), (11, 50), (51, 200), (201, 10**9))
 
 
-def frame_nll(res, scored: np.ndarray) -> np.ndarray:
+def frame_nll(res, scored: np.ndarray, adjusted: bool = False) -> np.ndarray:
     """(n, N) joint NLL of each update frame (Eq. 55a's used-residual term; the unused slots' cap is
-    the same for every calibration under imposed decisions), 0 where not scored."""
+    the same for every calibration under imposed decisions), 0 where not scored; adjusted: plus
+    ``1/2 tr(S^-1 R)`` (Eq. 55b, ``innovation_nll_adjusted``)."""
     frame = 0.5 * (res.nis + res.log_det_S + res.dof * LOG_2PI)
+    if adjusted:
+        frame = frame + 0.5 * (res.dof - res.pose_trace)
     return np.where(scored[None], frame, 0.0)
 
 
@@ -77,7 +80,8 @@ def sim_config(sim: dict | None) -> SimConfig:
     return SimConfig.paper_540m(**sim)
 
 
-def measure(seeds, n_drives: int, sim: dict | None = None, filter_options: dict | None = None) -> dict:
+def measure(seeds, n_drives: int, sim: dict | None = None, filter_options: dict | None = None,
+            adjusted: bool = False) -> dict:
     """Per drive the per-frame gradients (D, N, 8) and the drive's Hessian (D, 8, 8) of the joint
     NLL at the truth in the flat city's variables (VARS, fx and fy apart; filter_options: FilterConfig overrides
     besides the imposed decisions, e.g. a pixel noise that matches the drives')."""
@@ -98,7 +102,7 @@ def measure(seeds, n_drives: int, sim: dict | None = None, filter_options: dict 
             if res.diverged.any():
                 skipped += 1
                 continue
-            nll = frame_nll(res, scored_frames(drive))  # (n, N)
+            nll = frame_nll(res, scored_frames(drive), adjusted)  # (n, N)
             g, _ = derivatives(nll, h)  # (8, N)
             _, H = derivatives(nll.sum(axis=1), h)  # (8, 8)
             gs.append(g.T)
@@ -194,6 +198,8 @@ def main(argv=None) -> None:
                         help='SimConfig overrides of the fresh drives as JSON, e.g. \'{"imu_noise_on": false}\' or \'{"imu_noise": {"gyro_noise": 1e-9}}\'')
     parser.add_argument("--filter", type=json.loads, default=None,
                         help='FilterConfig overrides as JSON, e.g. \'{"pixel_sigma_px": 0.35}\'')
+    parser.add_argument("--adjusted", action="store_true",
+                        help="the adjusted joint likelihood (innovation_nll_adjusted, Eq. 55b)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the per-frame gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
@@ -204,10 +210,10 @@ def main(argv=None) -> None:
         saved = np.load(args.load)
         data = {"g": saved["g"], "H": saved["H"], "skipped": int(saved["skipped"])}
     else:
-        data = measure(args.seeds, args.drives, args.sim, args.filter)
+        data = measure(args.seeds, args.drives, args.sim, args.filter, args.adjusted)
     if args.save:
         np.savez(args.save, **data)
-    print(f"{DRIVE}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each "
+    print(f"{DRIVE}, {'adjusted ' if args.adjusted else ''}sim {args.sim or 'default'}, filter {args.filter or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each "
           f"({data['skipped']} skipped: a filter diverged), imposed decisions, {time.process_time() - start:.0f} s CPU")
     print("\n".join(report(data, np.random.default_rng(0))))
 

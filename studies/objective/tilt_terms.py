@@ -17,10 +17,20 @@ noise: does the pixels' noise make it?), at the true poses (does the pose estima
 it?), and at the true poses but for one block of the relative pose's error (psi12, dt12 per axis,
 psi13, dt13 per axis; which error?). Each with the residuals r and S of the truth run.
 
+``--predict`` adds C_direct's pose share as the filter's own quantities predict it: with the
+estimate's relative-pose error d (r at the estimate = r at the truth + J d) and
+``M = d(dr)/dd``, ``E[(M d)^T S^-1 J d] = tr(M^T S^-1 J Sigma)`` where Sigma is the error's
+covariance (the filter's claim). It is not zero even for a consistent filter: the likelihood is
+exact when the trajectory is random about the estimate, while a drive has one fixed trajectory
+and the estimate is what is random. ``adjustment`` is the derivative of
+``1/2 tr(S^-1 R) = m/2 - 1/2 tr(J^T S^-1 J Sigma)`` (each run its own S, J, Sigma), whose
+J-part cancels that share: the candidate correction of the likelihood.
+
 Fresh ``paper_540m`` drives (cameras ``--seeds``, drives ``(s, 100 + i)``), imposed decisions
 (``reference_all``), the filter's measured-pixel Jacobians unless ``--filter`` says otherwise
 (the reconstruction re-computes the default kernel's update NLL; it prints the largest difference),
-central differences of +-1.5 px. Per drive the terms summed over the update frames; printed: the
+central differences of information_equality.py's steps (1.5 px, 0.15 deg, 1.5 cm). An extrinsic
+variable moves the cameras' poses only: its C is all C_reach (C_direct and its splits are 0). Per drive the terms summed over the update frames; printed: the
 mean over drives, its SE, t and the signed-rank p.
 
     python studies/objective/tilt_terms.py [--seeds 0 1 2 3 4] [--drives 4] [--var fy] [--sim JSON] [--save F.npz]
@@ -42,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 
 from feature_information import USED
+from information_equality import STEP
 from objective_bias import FRESH_SEED0
 from pose_linearisation import _problem, perturbed, pose_error, relative_poses
 from scipy.stats import wilcoxon
@@ -53,13 +64,12 @@ from avio.filter.trifocal import feature_residuals
 from avio.filter.update import NOISE_FLOOR
 from avio.sim.simulator import simulate
 
-STEP_PX = 1.5
 #: the relative pose's error blocks (pose_error's order: psi12, dt12, psi13, dt13)
 BLOCKS = {"psi12": [0, 1, 2], "dt12_x": [3], "dt12_y": [4], "dt12_z": [5], "psi13": [6, 7, 8],
           "dt13_x": [9], "dt13_y": [10], "dt13_z": [11]}
 TERMS = ("A", "B", "C", "C_direct", "C_reach", "C_direct_clean_pixels", "C_direct_true_poses",
          "C_direct_r_noise", "C_direct_r_pose", "C_direct_r_pose_linear",
-         *(f"C_direct_error_{b}" for b in BLOCKS), "kernel_total")
+         *(f"C_direct_error_{b}" for b in BLOCKS), "kernel_total", "adjustment", "C_direct_predicted")
 
 
 def residuals(uv: np.ndarray, poses: tuple, intrinsics: np.ndarray, sigma: float,
@@ -82,21 +92,19 @@ def residuals(uv: np.ndarray, poses: tuple, intrinsics: np.ndarray, sigma: float
 
 
 def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict,
-                every: int = 1) -> dict[str, float] | None:
+                every: int = 1, predict: bool = False) -> dict[str, float] | None:
     """Per term (TERMS), its sum over the update frames of one fresh drive (every ``every``-th); the
     reconstruction's largest difference from the kernel's update NLL (``check``); None when a
     filter diverged."""
     sigma = float(filter_options.get("pixel_sigma_px", 0.7))
     problem = _problem(seed, sigma, {k: v for k, v in filter_options.items() if k != "pixel_sigma_px"})
     camera, cfg = problem.sequence.truth_calibration, problem.filter_config
-    base = np.array([camera.fx_px[0], camera.fy_px[0], camera.cx_px[0], camera.cy_px[0]])
-    rows = np.repeat(base[None], 3, axis=0)
-    col = ("fx", "fy", "cx", "cy").index(var)
-    rows[0, col] -= STEP_PX
-    rows[2, col] += STEP_PX
-    batch = camera.repeat(3)
-    batch = type(camera)(**{**batch.__dict__, "fx_px": rows[:, 0], "fy_px": rows[:, 1], "cx_px": rows[:, 2],
-                            "cy_px": rows[:, 3]})
+    j = problem.space.names.index(var)
+    x = np.repeat(problem.truth[None], 3, axis=0)
+    x[0, j] -= STEP[var]
+    x[2, j] += STEP[var]
+    batch = problem.calibration_space.decode(x)
+    rows = np.stack([batch.fx_px, batch.fy_px, batch.cx_px, batch.cy_px], axis=1)  # (3, 4) intrinsics
     drive = simulate(sim_config({**sim, "pixel_noise_px": sim.get("pixel_noise_px", 0.7)}),
                      (seed, FRESH_SEED0 + index), true_calibration=camera)
     clean = simulate(sim_config({**sim, "pixel_noise_px": 0.0}), (seed, FRESH_SEED0 + index), true_calibration=camera)
@@ -105,11 +113,12 @@ def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict
     if res.diverged.any():
         return None
     Rci, pic = camera.R_cam_imu[0], camera.p_imu_cam_m[0]
+    ext = [(batch.R_cam_imu[p], batch.p_imu_cam_m[p]) for p in range(3)]  # each run's extrinsic
     noisy_tracks, clean_tracks = drive.tracks.uv_px, clean.tracks.uv_px
     trip_of = {int(k): j for j, k in enumerate(drive.tracks.frame_index)}
-    out = dict.fromkeys(TERMS, 0.0)
+    out = dict.fromkeys([t for t in TERMS if predict or t != "C_direct_predicted"], 0.0)
     check = 0.0
-    h2 = 2 * STEP_PX
+    h2 = 2 * STEP[var]
 
     def q(r, S):
         return 0.5 * r @ np.linalg.solve(S, r)
@@ -123,7 +132,7 @@ def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict
         tj = trip_of[int(k)]
         match = [int(np.nonzero(np.all(noisy_tracks[tj] == u, axis=(1, 2)))[0][0]) for u in uv]
         uv_clean = clean_tracks[tj][match]
-        est = [relative_poses(res.update_poses[p, k][:, :3, :], res.update_poses[p, k][:, 3, :], Rci, pic)
+        est = [relative_poses(res.update_poses[p, k][:, :3, :], res.update_poses[p, k][:, 3, :], *ext[p])
                for p in range(3)]
         t3 = k + np.array([-2, -1, 0])
         true = relative_poses(drive.truth.R_world_imu[t3], drive.truth.p_world_imu_m[t3], Rci, pic)
@@ -139,7 +148,12 @@ def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict
         def dr(poses, pixels=uv):  # the residuals' derivative along var, this run's Sigma
             return (at(2, poses, pixels=pixels)[0] - at(0, poses, pixels=pixels)[0]) / h2
 
-        terms = {"A": (ld(Sp) - ld(Sm)) / h2, "B": (q(r1, Sp) - q(r1, Sm)) / h2, "C": (q(rp, S1) - q(rm, S1)) / h2,
+        def half_tr_Sinv_R(r_S_J, p_cov):  # 1/2 tr(S^-1 R) = m/2 - 1/2 tr(S^-1 J Sigma J^T)
+            _, S, J = r_S_J
+            return 0.5 * np.trace(np.linalg.solve(S, S - J @ res.pose_cov[p_cov, k] @ J.T))
+
+        terms = {"adjustment": (half_tr_Sinv_R(at(2, est[2], 2), 2) - half_tr_Sinv_R(at(0, est[0], 0), 0)) / h2,
+                 "A": (ld(Sp) - ld(Sm)) / h2, "B": (q(r1, Sp) - q(r1, Sm)) / h2, "C": (q(rp, S1) - q(rm, S1)) / h2,
                  "C_direct": dr(est[1]) @ w, "C_reach": (at(1, est[2])[0] - at(1, est[0])[0]) / h2 @ w,
                  "C_direct_clean_pixels": dr(est[1], uv_clean) @ w, "C_direct_true_poses": dr(true) @ w}
         # C_direct split by the residuals' parts: the pixels' noise, the pose error's, and that
@@ -147,6 +161,14 @@ def drive_terms(seed: int, index: int, var: str, sim: dict, filter_options: dict
         Sinv_dr = np.linalg.solve(S1, dr(est[1]))
         terms |= {"C_direct_r_noise": Sinv_dr @ r_true, "C_direct_r_pose": Sinv_dr @ (r1 - r_true),
                   "C_direct_r_pose_linear": Sinv_dr @ (J1 @ delta)}
+        if predict:  # C_direct's pose share from the filter's own Sigma: tr(M^T S^-1 J Sigma), M = d(dr)/d(pose)
+            M = np.empty((len(r1), 12))
+            for c in range(12):
+                step = np.zeros(12)
+                step[c] = 1e-4
+                up, down = (perturbed(*est[1], (sgn * step)[None]) for sgn in (1.0, -1.0))
+                M[:, c] = (dr(tuple(a[0] for a in up[:4])) - dr(tuple(a[0] for a in down[:4]))) / 2e-4
+            terms["C_direct_predicted"] = float(np.trace(M.T @ np.linalg.solve(S1, J1 @ res.pose_cov[1, k])))
         for name, idx in BLOCKS.items():
             mask = np.zeros(12)
             mask[idx] = 1.0
@@ -165,20 +187,25 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras (data seeds)")
     parser.add_argument("--drives", type=int, default=4, help="fresh drives per camera")
-    parser.add_argument("--var", default="fy", choices=["fx", "fy", "cx", "cy"])
+    parser.add_argument("--var", default="fy", choices=list(STEP))
     parser.add_argument("--sim", type=json.loads, default={}, help="SimConfig overrides as JSON (score_lags.py's)")
     parser.add_argument("--filter", type=json.loads, default={}, help="FilterConfig overrides as JSON")
+    parser.add_argument("--every", type=int, default=1, help="every n-th update frame only")
+    parser.add_argument("--predict", action="store_true",
+                        help="also C_direct's pose share predicted from the filter's own Sigma (~3x the CPU)")
     parser.add_argument("--save", type=Path, help="write the per-drive terms (.npz)")
     args = parser.parse_args(argv)
     set_threads(1)
     per_drive = [t for s in args.seeds for i in range(args.drives)
-                 if (t := drive_terms(s, i, args.var, args.sim, args.filter)) is not None]
+                 if (t := drive_terms(s, i, args.var, args.sim, args.filter, args.every, args.predict)) is not None]
     if args.save:
-        np.savez(args.save, **{k: np.array([d[k] for d in per_drive]) for k in (*TERMS, "check")})
+        np.savez(args.save, **{k: np.array([d[k] for d in per_drive]) for k in (*TERMS, "check") if k in per_drive[0]})
     print(f"sim {args.sim or 'default'}, filter {args.filter or 'default'}: {len(per_drive)} drives, d/d{args.var} "
           f"(nats per px per drive); reconstruction's largest difference {max(d['check'] for d in per_drive):.1e} nats")
     print("| term | mean | SE | t | signed-rank p |\n|---|---|---|---|---|")
     for k in TERMS:
+        if k not in per_drive[0]:
+            continue
         x = np.array([d[k] for d in per_drive])
         se = x.std(ddof=1) / np.sqrt(len(x))
         print(f"| {k} | {x.mean():+.4f} | {se:.4f} | {x.mean() / se:+.1f} | {wilcoxon(x).pvalue:.2g} |")

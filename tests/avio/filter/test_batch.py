@@ -19,7 +19,7 @@ from avio.filter.prepare import prepare
 from avio.geometry import so3_exp
 
 FIELDS = ("p_world_imu_m", "R_world_imu", "v_world_imu_mps", "diverged", "diverged_at_frame", "n_updates",
-          "n_outliers", "sigma", "b_a_mps2", "b_g_radps", "nis", "log_det_S", "dof", "nll", "nll_slots")
+          "n_outliers", "sigma", "b_a_mps2", "b_g_radps", "nis", "log_det_S", "dof", "nll", "nll_slots", "pose_trace")
 
 
 def _candidates(cal: Calibration, n: int, seed: int) -> Calibration:

@@ -1,5 +1,5 @@
-"""The update's joint innovation statistics (docs/model.md, Eqs. 44-45, which the joint likelihood
-avio.objectives.innovation_nll_joint sums, Eq. 55a) against the dense stacked innovation
+"""The update's joint innovation statistics (docs/model.md, Eqs. 44-45 and 55b, which the joint
+likelihoods of avio.objectives.innovation_nll_joint sum, Eqs. 55a-b) against the dense stacked innovation
 covariance ``S = H P H^T + R`` formed explicitly; and the update's score at the true pose with each
 feature's Jacobian at its measured or its corrected pixels (FilterConfig.jacobian_pixels, Eq. 35a)."""
 
@@ -56,7 +56,8 @@ def _measured(Rs, ps, uv, cap=0.0):
 
 
 def _dense(Rs, ps, P, uv, sigma_px):
-    """NIS and log det S of all features from the explicit (3F, 3F) S = H P H^T + R."""
+    """NIS, log det S, the residual count and the pose's share tr(S^-1 H P H^T) (Eq. 55b) of all
+    features from the explicit (3F, 3F) S = H P H^T + R."""
     F = uv.shape[0]
     r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
@@ -70,16 +71,16 @@ def _dense(Rs, ps, P, uv, sigma_px):
         G = G4[rows, :, f]
         R[3 * f:3 * f + 3, 3 * f:3 * f + 3] = sigma_px**2 * (G @ G.T + NOISE_FLOOR**2 * np.eye(3))
     S = H @ P @ H.T + R
-    return r @ np.linalg.solve(S, r), np.linalg.slogdet(S)[1], 3 * F
+    return r @ np.linalg.solve(S, r), np.linalg.slogdet(S)[1], 3 * F, np.trace(np.linalg.solve(S, H @ P @ H.T))
 
 
-def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation():
+def test_the_updates_nis_log_det_s_and_pose_trace_are_those_of_the_dense_stacked_innovation():
     rng = np.random.default_rng(3)
     sigma = 0.7
     for _ in range(3):
         Rs, ps, P, uv = _scene(rng)
         F = uv.shape[0]
-        nis_d, lds_d, m = _dense(Rs, ps, P, uv, sigma)
+        nis_d, lds_d, m, trace_d = _dense(Rs, ps, P, uv, sigma)
         x = FilterState(R=Rs[2].copy(), p=ps[2].copy(), v=np.zeros(3), ba=np.zeros(3), bg=np.zeros(3),
                         cp0=ps[0].copy(), cR0=Rs[0].copy(), cp1=ps[1].copy(), cR1=Rs[1].copy(), P=P.copy())
         fx, fy, cx, cy = INTRINSICS
@@ -91,12 +92,14 @@ def test_the_updates_nis_and_log_det_s_are_those_of_the_dense_stacked_innovation
                        max_variance=np.inf, max_speed_mps=np.inf, correction_cap_px=0.0)
         ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                               outliers=outlier_workspace(F))
-        used, rejected, nis, lds, dof, _, slots = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg, ws,
-                                                         False, np.zeros(F, np.uint8))
+        used, rejected, nis, lds, dof, _, slots, trace = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg,
+                                                                ws, False, np.zeros(F, np.uint8))
         assert (used, rejected, dof, slots) == (F, 0, m, m)
         assert nis > 1.0
         np.testing.assert_allclose(nis, nis_d, rtol=1e-7)
         np.testing.assert_allclose(lds, lds_d, rtol=1e-9, atol=1e-8)
+        assert 0.0 < trace < 12.0  # tr((I + A Sigma)^-1 A Sigma): at most the 12 pose errors
+        np.testing.assert_allclose(trace, trace_d, rtol=1e-8)
 
 
 def test_corrected_pixels_satisfy_the_used_residuals_to_first_order():

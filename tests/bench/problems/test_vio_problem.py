@@ -246,10 +246,28 @@ def test_the_joint_likelihood_prefers_the_truth_a_batch_equals_single_runs_and_n
     assert not np.allclose(f_c, f)  # a different objective: per-feature marginals against the joint
 
 
+def test_the_adjusted_likelihood_is_the_joint_one_plus_half_the_trace_of_s_inverse_r():
+    imposed = {"outlier_decisions": "reference_all"}
+    adjusted = Synthetic(holdout=None, objective="innovation_nll_adjusted", filter=imposed, **SHORT)
+    X = _truth_wrong_reference(adjusted)
+    f, metrics = adjusted.evaluate(X)
+    assert f[0] < f[1] and np.all(np.isfinite(f))
+    np.testing.assert_array_equal(f, np.array([adjusted.evaluate(X[i:i + 1])[0][0] for i in range(3)]))
+    # Eq. (55b) from the filter's own outputs: + 1/2 (dof - pose_trace) per update over the scored slots
+    cal = adjusted.calibration_space.decode(X)
+    drive = adjusted.drives[0]
+    res = adjusted.run_filter(cal, drive)
+    scored = adjusted._scored_frames(drive)
+    assert np.all((res.pose_trace >= 0) & (res.pose_trace <= 12)) and res.pose_trace[:, scored].sum() > 0
+    extra = np.where(scored, 0.5 * (res.dof - res.pose_trace), 0.0).sum(axis=1) / np.where(scored, res.nll_slots, 0).sum(axis=1)
+    np.testing.assert_allclose(f, metrics["innovation_nll_joint"] + extra, rtol=1e-12)
+
+
 @pytest.mark.parametrize("objective, given, used", [
     ("position_rmse", None, "own"),                      # the paper's filter decides for itself
     ("innovation_nll", None, "reference_all"),           # a likelihood imposes the reference's decisions
     ("innovation_nll_joint", None, "reference_all"),
+    ("innovation_nll_adjusted", None, "reference_all"),
     ("innovation_nll", {"outlier_decisions": "own"}, "own"),  # unless the user's filter says otherwise
     ("position_rmse", {"outlier_decisions": "reference"}, "reference"),
 ])

@@ -18,3 +18,13 @@ def test_the_terms_add_up_to_the_kernels_score_and_the_blocks_to_the_pose_errors
     # the residuals are linear enough in the pose error that its blocks' shares add up
     blocks = sum(t[f"C_direct_error_{b}"] - t["C_direct_true_poses"] for b in module.BLOCKS)
     assert np.isclose(blocks, t["C_direct"] - t["C_direct_true_poses"], rtol=0.2, atol=0.02 * scale)
+
+
+def test_an_extrinsic_moves_the_poses_only_and_the_prediction_is_the_filters_own(load_script):
+    module = load_script("tilt_terms")
+    t = module.drive_terms(0, 0, "rx", {}, {}, every=40)
+    assert t["check"] < 1e-8 and t["C_direct"] == 0.0
+    assert abs(t["C_reach"] - t["C"]) < 0.05 * (abs(t["A"]) + abs(t["B"]) + abs(t["C"]))
+    p = module.drive_terms(0, 0, "fy", {}, {}, every=40, predict=True)
+    # tr(M^T S^-1 J Sigma) > 0 along fy: fy scales the pixels a pose error moves (J grows with fy)
+    assert p["C_direct_predicted"] > 0 and np.isfinite(p["adjustment"]) and p["adjustment"] < 0
