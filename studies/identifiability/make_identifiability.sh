@@ -72,8 +72,9 @@ all+=(innovation_nll_joint_fourdrive_7free_refall_corrected_1600evals_10seeds
       innovation_nll_joint_sixteendrive_7free_refall_1600evals_10seeds
       innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_10seeds)
 # issue 33: the adjusted joint likelihood (innovation_nll_adjusted, docs/model.md Eq. 55b: its fy tilt at the truth
-# cancelled), 4 flat-city drives, 7 free
-all+=(innovation_nll_adjusted_fourdrive_7free_refall_1600evals_10seeds)
+# cancelled), 4 flat-city drives, 7 free, and 4 excited-rig drives, all 10 free
+all+=(innovation_nll_adjusted_fourdrive_7free_refall_1600evals_10seeds
+      innovation_nll_adjusted_fourdrive_10free_full3d_refall_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
