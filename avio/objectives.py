@@ -130,6 +130,19 @@ def unused_feature_nll(sigma_px: float, chi2_threshold: float) -> float:
     return 0.5 * (chi2_threshold + M * np.log(sigma_px * sigma_px) + M * LOG_2PI)
 
 
+def joint_update_nll(result) -> np.ndarray:
+    """(n, N) each update's joint NLL over the residuals it used (nats; Eq. 55a's used-residual term,
+    0 where no update ran): ``1/2 (NIS + log det S + m log 2 pi)``."""
+    return 0.5 * (result.nis + result.log_det_S + result.dof * LOG_2PI)
+
+
+def update_adjustment(result) -> np.ndarray:
+    """(n, N) the adjusted likelihood's added term of each update, ``1/2 tr(S^-1 R) = 1/2 (m -
+    pose_trace)`` (nats; Eq. 55b: its mean slope cancels the pose error's coupling with the
+    calibration), 0 where no update ran."""
+    return 0.5 * (result.dof - result.pose_trace)
+
+
 def innovation_nll_joint(results, penalty: float, unused_nll: float, scored=None, adjusted: bool = False) -> np.ndarray:
     """(n,) the joint innovation NLL per residual pooled over the drives (module docstring;
     docs/model.md, Eq. 55a). unused_nll: :func:`unused_feature_nll` of the filter's settings
@@ -140,9 +153,9 @@ def innovation_nll_joint(results, penalty: float, unused_nll: float, scored=None
     slots = 0
     for r, m in zip(results, scored):
         # Eq. (55a): the joint term of the used residuals (Eqs. 44-45) and the cap of the unused slots.
-        frame = 0.5 * (r.nis + r.log_det_S + r.dof * LOG_2PI) + (r.nll_slots - r.dof) / M * unused_nll
-        if adjusted:  # Eq. (55b): + 1/2 tr(S^-1 R), whose mean slope cancels the pose error's coupling
-            frame = frame + 0.5 * (r.dof - r.pose_trace)
+        frame = joint_update_nll(r) + (r.nll_slots - r.dof) / M * unused_nll
+        if adjusted:
+            frame = frame + update_adjustment(r)
         keep = np.ones(r.nis.shape[1], bool) if m is None else m
         nll = nll + np.where(keep, frame, 0.0).sum(axis=1)
         slots = slots + np.where(keep, r.nll_slots, 0).sum(axis=1)

@@ -48,8 +48,7 @@ from minimiser_scatter import derivatives, design
 from objective_bias import DRIVE, FRESH_SEED0
 
 from avio.filter.batch import set_threads
-from avio.filter.update import LOG_2PI
-from avio.objectives import scored_frames
+from avio.objectives import joint_update_nll, scored_frames, update_adjustment
 from avio.sequence import ImuNoise
 from avio.sim.simulator import SimConfig, simulate
 from bench.problems.synthetic import Synthetic
@@ -62,9 +61,9 @@ def frame_nll(res, scored: np.ndarray, adjusted: bool = False) -> np.ndarray:
     """(n, N) joint NLL of each update frame (Eq. 55a's used-residual term; the unused slots' cap is
     the same for every calibration under imposed decisions), 0 where not scored; adjusted: plus
     ``1/2 tr(S^-1 R)`` (Eq. 55b, ``innovation_nll_adjusted``)."""
-    frame = 0.5 * (res.nis + res.log_det_S + res.dof * LOG_2PI)
+    frame = joint_update_nll(res)
     if adjusted:
-        frame = frame + 0.5 * (res.dof - res.pose_trace)
+        frame = frame + update_adjustment(res)
     return np.where(scored[None], frame, 0.0)
 
 
