@@ -262,7 +262,8 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
                         zero_velocity_sigma_mps=float(c.zero_velocity_sigma_mps),
                         max_variance=float(c.divergence_max_variance), max_speed_mps=float(c.divergence_max_speed_mps),
                         correction_cap_px=CORRECTION_CAP_SIGMAS * float(c.pixel_sigma_px)
-                        if c.jacobian_pixels == "corrected" else 0.0)
+                        if c.jacobian_pixels != "measured" else 0.0,
+                        correct_noise_model=c.jacobian_pixels == "corrected")
     out = _outputs(n, N, (n if record_used else 0, *prep.valid.shape))
     # The kernel releases the GIL: the filters of the batch run on threads at once, each filter
     # on one thread (numba prange was tried: +41 s, +31 %, on the first compile). One task per

@@ -33,7 +33,7 @@ OUTLIER_MODES = ("ransac", "mahalanobis", "both", "none")
 
 DECISION_SOURCES = ("own", "reference", "reference_all")
 #: where the update takes each feature's Jacobian and noise model (FilterConfig.jacobian_pixels)
-JACOBIAN_PIXELS = ("measured", "corrected")
+JACOBIAN_PIXELS = ("measured", "corrected", "corrected_jacobian")
 #: the corrected pixels' longest step, in pixel sigmas (docs/model.md, Eq. 35b): the radius that
 #: holds 99.9 % of a correct feature's step (chi-square, 3 dof: sqrt(16.27) = 4.03)
 CORRECTION_CAP_SIGMAS = 4.0
@@ -86,7 +86,9 @@ class FilterConfig:
         lateral NEES is 2.50 against ~1 corrected (studies/objective/README.md). The correction's
         step is capped at CORRECTION_CAP_SIGMAS pixel sigmas (Eq. 35b); on a few drives in 50 the
         likelihood is still rough where R_f at the corrected pixels is nearly singular
-        (studies/identifiability/README.md), so "measured" stays the default.
+        (studies/identifiability/README.md), so "measured" stays the default. "corrected_jacobian":
+        J_f alone at the corrected pixels, G_f and R_f at the measured ones (Eq. 35c): the score's
+        bias goes with J_f, and the likelihood stays as smooth as with the measured pixels.
     max_transfer_gain: a feature whose transferred point moves more than this many pixels per
         pixel of measurement noise (standard deviations) is a degenerate transfer and is not used;
         at the true poses inliers stay below ~10, degenerate ones reach thousands (Eq. 36).

@@ -72,6 +72,8 @@ class Settings(NamedTuple):
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
     #: J_f and G_f at the corrected pixels (Eqs. 35a-b), the step at most this long, px; 0: at the measured pixels
     correction_cap_px: float
+    #: with correction_cap_px > 0: G_f (so R_f) at the corrected pixels too (Eq. 35a); False: J_f alone (Eq. 35c)
+    correct_noise_model: bool
 
 
 class Outputs(NamedTuple):

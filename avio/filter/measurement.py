@@ -31,12 +31,15 @@ class MeasurementError(AvioError):
 
 
 @kernel_jit(inline="always")
-def _copy_out(JL, GL, S, lo, n, J, Gp, f0):
-    # Features lo..lo+n-1 of the flat JL, GL (stride S) into features f0.. of J (4, 12, F), Gp (4, 6, F).
+def _copy_out(JL, GL, S, lo, n, J, Gp, f0, with_gp=True):
+    # Features lo..lo+n-1 of the flat JL, GL (stride S) into features f0.. of J (4, 12, F), Gp (4, 6, F)
+    # (Gp left as it is when not with_gp).
     for a in range(4):
         for b in range(12):
             for lane in range(n):
                 J[a, b, f0 + lane] = JL[(12 * a + b) * S + lo + lane]
+        if not with_gp:
+            continue
         for b in range(6):
             for lane in range(n):
                 Gp[a, b, f0 + lane] = GL[(6 * a + b) * S + lo + lane]
@@ -74,7 +77,7 @@ def measure_workspace():
 
 @kernel_jit
 def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23,
-            cap=0.0):
+            cap=0.0, noise_too=True):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
     noise model, avio.filter.trifocal.feature_residuals, which writes one feature's column: features
@@ -88,8 +91,8 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
     -> residuals (avio.filter.trifocal.feature_residuals). ``pair23=False`` leaves residual 1 (the
     Sampson distance 2-3, which the update does not use) zero. With ``cap > 0`` (px) each feature's
-    J and Gp are taken again at its corrected pixels (:func:`corrected_pixels`, Eq. 35a, the step
-    at most ``cap`` long; r stays the measured pixels' innovation).
+    J and (with ``noise_too``) Gp are taken again at its corrected pixels (:func:`corrected_pixels`,
+    Eqs. 35a-b, the step at most ``cap`` long; r stays the measured pixels' innovation).
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
@@ -156,12 +159,13 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
                 for lane in range(n):
                     r[a, f0 + lane] = rL[a * LANES + lane]
             _copy_out(JL, GL, LANES, 0, n, J, Gp, f0)
-    # Eq. (35a): J and Gp again at the corrected pixels (r stays the measured pixels' innovation).
+    # Eq. (35a): J and Gp (or J alone, Eq. 35c) again at the corrected pixels (r stays the measured
+    # pixels' innovation).
     if cap > 0.0:
         for f in range(F):
             if corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
                 one_feature(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL, GL, pair23)
-                _copy_out(JL, GL, 1, 0, 1, J, Gp, f)
+                _copy_out(JL, GL, 1, 0, 1, J, Gp, f, noise_too)
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)

@@ -189,7 +189,7 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     # G4 and the chain C (H = J C).
     measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
             cal.cy[i], cal.R_cam_imu[i], cal.p_imu_cam_m[i], uv, r4, J4, G4, C, t12, t13, ws.measure, False,
-            cfg.correction_cap_px)
+            cfg.correction_cap_px, cfg.correct_noise_model)
     # Eq. (36): without baseline the epipolar geometry and the transfer are undefined (standing still).
     b12 = np.sqrt(t12[0] ** 2 + t12[1] ** 2 + t12[2] ** 2)
     b23 = np.sqrt((t13[0] - t12[0]) ** 2 + (t13[1] - t12[1]) ** 2 + (t13[2] - t12[2]) ** 2)

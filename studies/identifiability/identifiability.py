@@ -147,14 +147,19 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 OBJECTIVE_ORDER = ("position_rmse", "innovation_nll", "innovation_nll_joint", "innovation_nll_adjusted")
+#: FilterConfig.jacobian_pixels, in the table's order, and how the table and the figure name each
+JACOBIAN_ORDER = ("measured", "corrected", "corrected_jacobian")
+JACOBIAN_LABELS = {"corrected": (", Jacobian at corrected pixels", ", corr. J"),
+                   "corrected_jacobian": (", Jacobian alone at corrected pixels", ", corr. J alone")}
 
 
 def ordered(summary: pd.DataFrame) -> pd.DataFrame:
     """Rows by objective (the paper's first), drives, noise realisations, free variables (most
     first), budget, seeds and outlier decisions (the filters' own first): the order of the table and the figure."""
     rank = [OBJECTIVE_ORDER.index(o) if o in OBJECTIVE_ORDER else len(OBJECTIVE_ORDER) for o in summary.objective]
+    jacobian = summary.get("jacobian", pd.Series("measured", index=summary.index))
     keys = summary.assign(_o=rank, _f=-summary.free, _d=summary.decisions != "own",
-                          _j=summary.get("jacobian", "measured") != "measured")
+                          _j=[JACOBIAN_ORDER.index(j) if j in JACOBIAN_ORDER else len(JACOBIAN_ORDER) for j in jacobian])
     keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d", "_j"], kind="stable")
     return summary.loc[keys.index].reset_index(drop=True)
 
@@ -169,7 +174,7 @@ def markdown(summary: pd.DataFrame) -> str:
         rig = getattr(r, "rig", "paper_540m")
         drives += f" {rig}" if rig != "paper_540m" else ""
         objective = r.objective + (f" ({r.decisions} decisions)" if r.decisions != "own" else "")
-        objective += ", Jacobian at corrected pixels" if getattr(r, "jacobian", "measured") != "measured" else ""
+        objective += JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[0]
         lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
@@ -188,7 +193,7 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
               + (f", {r.evals} ev" if budgets else "") + (f", {r.seeds} seeds" if r.seeds != usual else "")
               + (f", {r.decisions} dec" if r.decisions != "own" else "")
-              + (", corr. J" if getattr(r, "jacobian", "measured") != "measured" else "")
+              + JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[1]
               for r in summary.itertuples()]
     fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",

@@ -75,6 +75,11 @@ all+=(innovation_nll_joint_fourdrive_7free_refall_corrected_1600evals_10seeds
 # cancelled), 4 flat-city drives, 7 free, and 4 excited-rig drives, all 10 free
 all+=(innovation_nll_adjusted_fourdrive_7free_refall_1600evals_10seeds
       innovation_nll_adjusted_fourdrive_10free_full3d_refall_1600evals_10seeds)
+# issue 33: the adjusted joint likelihood with each feature's Jacobian alone at its corrected pixels, its noise model
+# at the measured ones (suffix _correctedjac, docs/model.md Eq. 35c: smooth, and half the cross-update excess)
+all+=(innovation_nll_adjusted_fourdrive_7free_refall_correctedjac_1600evals_10seeds
+      innovation_nll_adjusted_fourdrive_10free_full3d_refall_correctedjac_1600evals_10seeds
+      innovation_nll_adjusted_sixteendrive_7free_refall_correctedjac_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -86,6 +91,8 @@ for name in "$@"; do
   # decisions suffix means the filters' own, so it says so
   # suffix _corrected: each feature's Jacobian at its corrected pixels (FilterConfig.jacobian_pixels, issue 33)
   jac=""; [[ $base == *_corrected ]] && { jac=", jacobian_pixels: corrected"; base=${base%_corrected}; }
+  # suffix _correctedjac: the Jacobian alone there, the noise model at the measured pixels (Eq. 35c)
+  [[ $base == *_correctedjac ]] && { jac=", jacobian_pixels: corrected_jacobian"; base=${base%_correctedjac}; }
   decisions=("problem.params.filter={outlier_decisions: own$jac}"); [[ $base == *_refdecisions ]] && { decisions=("problem.params.filter={outlier_decisions: reference$jac}"); base=${base%_refdecisions}; }
   [[ $base == *_refall ]] && { decisions=("problem.params.filter={outlier_decisions: reference_all$jac}"); base=${base%_refall}; }
   preset=paper_540m; timing=()

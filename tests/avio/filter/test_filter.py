@@ -174,7 +174,7 @@ def test_missing_tracks_is_an_error(noiseless):
 def test_bad_outlier_mode_is_an_error():
     with pytest.raises(FilterError, match="outlier_rejection"):
         FilterConfig(outlier_rejection="magic")
-    with pytest.raises(FilterError, match=r"jacobian_pixels must be one of \('measured', 'corrected'\), got 'true'"):
+    with pytest.raises(FilterError, match=r"jacobian_pixels must be one of \('measured', 'corrected', 'corrected_jacobian'\), got 'true'"):
         FilterConfig(jacobian_pixels="true")
 
 

@@ -44,14 +44,15 @@ def _scene(rng, F=12, noise_px=0.7):
     return Rs, ps, P, uv
 
 
-def _measured(Rs, ps, uv, cap=0.0):
+def _measured(Rs, ps, uv, cap=0.0, noise_too=True):
     """The measurement (r4 (4, F), J4 (4, 12, F), G4 (4, 6, F)) of features uv (F, 3, 2) px from the
-    poses, the Jacobians at the measured pixels (cap 0) or the corrected ones (steps up to cap px)."""
+    poses, the Jacobians at the measured pixels (cap 0) or the corrected ones (steps up to cap px;
+    G4 too unless not noise_too, Eq. 35c)."""
     F = uv.shape[0]
     r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
     measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
-            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, cap)
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, cap, noise_too)
     return r4, J4, G4
 
 
@@ -89,7 +90,8 @@ def test_the_updates_nis_log_det_s_and_pose_trace_are_those_of_the_dense_stacked
                            frozen=np.zeros(1, np.bool_))
         cfg = Settings(sigma_px=sigma, max_transfer_gain=np.inf, min_parallax_m=0.0, mode=MODE_NONE,
                        ransac_threshold_sigma=3.0, chi2_threshold=11.34, zero_velocity_sigma_mps=0.0,
-                       max_variance=np.inf, max_speed_mps=np.inf, correction_cap_px=0.0)
+                       max_variance=np.inf, max_speed_mps=np.inf, correction_cap_px=0.0,
+                       correct_noise_model=False)
         ws = UpdateWorkspaces(update=update_workspace(F), measure=measure_workspace(), noise=noise_workspace(F),
                               outliers=outlier_workspace(F))
         used, rejected, nis, lds, dof, _, slots, trace = update(x, np.zeros(3), cal, 0, uv, np.ones(F, np.bool_), cfg,
@@ -126,13 +128,14 @@ def test_corrected_pixels_satisfy_the_used_residuals_to_first_order():
     np.testing.assert_allclose(uv[1] - u0, 0.5 * step, rtol=1e-12, atol=1e-12)
 
 
-def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0):
+def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0, noise_too=True):
     """Over pixel-noise draws at the true poses: the update's mean score beta (Eq. 40), its
     chi-square against its sampling covariance (12 dof) and its size in the mean information."""
     rows = list(USED_RESIDUALS)
     betas, infos = [], []
     for _ in range(draws):
-        r4, J4, G4 = _measured(Rs, ps, clean + rng.normal(0, sigma, clean.shape), 4.0 * sigma if corrected else 0.0)
+        r4, J4, G4 = _measured(Rs, ps, clean + rng.normal(0, sigma, clean.shape), 4.0 * sigma if corrected else 0.0,
+                               noise_too)
         beta, A = np.zeros(12), np.zeros((12, 12))
         for f in range(clean.shape[0]):
             G, J = G4[rows, :, f], J4[rows, :, f]
@@ -154,3 +157,22 @@ def test_the_score_at_the_true_pose_loses_its_bias_with_the_jacobian_at_the_corr
     # noise (217 here); corrected: no bias the 1000 draws can see (10 here)
     assert chi2_m > 100 and z_m > 0.1
     assert chi2_c < 32.9 and abs(z_c) < 0.1 * z_m
+
+
+def test_the_jacobian_alone_at_the_corrected_pixels_keeps_the_measured_noise_model():
+    # jacobian_pixels="corrected_jacobian" (Eq. 35c): J_f as "corrected", G_f (so R_f) as "measured"
+    rng = np.random.default_rng(3)
+    Rs, ps, _, uv = _scene(rng, F=16, noise_px=1.0)
+    r_m, J_m, G_m = _measured(Rs, ps, uv)
+    r_c, J_c, G_c = _measured(Rs, ps, uv, 4.0)
+    r_j, J_j, G_j = _measured(Rs, ps, uv, 4.0, noise_too=False)
+    assert np.array_equal(r_j, r_m) and np.array_equal(G_j, G_m) and np.array_equal(J_j, J_c)
+    assert not np.array_equal(J_j, J_m) and not np.array_equal(G_j, G_c)
+
+
+def test_the_score_at_the_true_pose_loses_its_bias_with_the_jacobian_alone_at_the_corrected_pixels():
+    Rs, ps, _, clean = _scene(np.random.default_rng(1), F=16, noise_px=0.0)
+    _, z_m = _mean_score(Rs, ps, clean, False, np.random.default_rng(2))
+    chi2_j, z_j = _mean_score(Rs, ps, clean, True, np.random.default_rng(2), noise_too=False)
+    # R_f at the measured pixels shares their noise too, but the bias is J's (Eq. 35c)
+    assert chi2_j < 32.9 and abs(z_j) < 0.1 * z_m
