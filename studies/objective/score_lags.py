@@ -189,6 +189,27 @@ def report(data: dict, rng) -> list[str]:
     return lines
 
 
+def paired(a: dict, b: dict, rng, n: int = 500) -> list[str]:
+    """Two saves of the same drives (two likelihoods or filters): per variable each one's G_ii/H_ii
+    over the drives typical in both, and b's over a's with a 95 % percentile interval, the drives
+    resampled in pairs."""
+    (ga, Ha), (gb, Hb) = free7(a["g"], a["H"]), free7(b["g"], b["H"])
+    if ga.shape != gb.shape:
+        raise SystemExit(f"score_lags: --paired needs saves of the same drives, got {ga.shape} and {gb.shape}")
+    both = np.flatnonzero(typical(Ha) & typical(Hb))
+    da, db = split(ga[both], Ha[both])["total_diag"], split(gb[both], Hb[both])["total_diag"]
+    ratios = []
+    for _ in range(n):
+        pick = rng.choice(both, len(both))
+        ratios.append(split(gb[pick], Hb[pick])["total_diag"] / split(ga[pick], Ha[pick])["total_diag"])
+    lo, hi = np.quantile(np.array(ratios), [0.025, 0.975], axis=0)
+    names = ("f",) + VARS[2:]
+    return [f"drives typical in both: {len(both)} of {len(ga)}",
+            "| variable | G_ii/H_ii, first | second | second ÷ first [95 %] |", "|---|---|---|---|",
+            *(f"| {v} | {x:.2f} | {y:.2f} | {y / x:.2f} [{p:.2f}–{q:.2f}] |"
+              for v, x, y, p, q in zip(names, da, db, lo, hi))]
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras (data seeds)")
@@ -202,7 +223,14 @@ def main(argv=None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the per-frame gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
+    parser.add_argument("--paired", type=Path, nargs=2, metavar=("A", "B"),
+                        help="compare two --save files of the same drives, variable by variable")
     args = parser.parse_args(argv)
+    if args.paired:
+        a, b = (np.load(f) for f in args.paired)
+        print(f"{args.paired[0]} (first) against {args.paired[1]} (second)")
+        print("\n".join(paired(a, b, np.random.default_rng(0))))
+        return
     set_threads(args.threads)
     start = time.process_time()
     if args.load:

@@ -49,3 +49,21 @@ def test_the_free_variables_tie_fx_and_fy(load_script):
     np.testing.assert_allclose(g7[..., 1:], g8[..., 2:])
     np.testing.assert_allclose(H7[:, 0, 0], H8[:, 0, 0] + H8[:, 1, 1] + H8[:, 0, 1] + H8[:, 1, 0])
     assert module.free7(g7, H7)[0] is g7
+
+
+def test_paired_ratios_find_a_halved_scatter_and_no_change_where_there_is_none(load_script):
+    module = load_script("score_lags")
+    rng = np.random.default_rng(3)
+    D, N = 400, 5
+    H = np.repeat((np.eye(8) * N)[None], D, axis=0)
+    g = rng.standard_normal((D, N, 8))
+    a = {"g": g, "H": H}
+    b = {"g": g.copy(), "H": H}
+    b["g"][:, :, 2] = np.sqrt(0.5) * rng.standard_normal((D, N))  # cx: half the variance; the rest identical
+    lines = module.paired(a, b, np.random.default_rng(0), n=200)
+    rows = {line.split(" | ")[0].strip("| "): line for line in lines[3:]}
+    assert lines[0] == f"drives typical in both: {D} of {D}"
+    assert rows["rz"].endswith("| 1.00 [1.00–1.00] |")
+    ratio = float(rows["cx"].split(" | ")[3].split(" [")[0])
+    lo, hi = (float(x) for x in rows["cx"].split("[")[1].rstrip("] |").split("–"))
+    assert 0.35 < ratio < 0.65 and lo < 0.5 < hi < 0.8
