@@ -27,8 +27,12 @@ class Nevergrad(AskTell):
 
     def __init__(self, lower, upper, seed: int, x0=None, name: str = "NGOpt", num_workers: int = 8,
                  budget: int | None = 1000) -> None:
+        # importing nevergrad draws from numpy's global generator (150 of MT19937's 624 words,
+        # nevergrad 1.0.12): its state is put back, so the first plugin built leaves it untouched too
+        state = np.random.get_state()
         import nevergrad as ng
 
+        np.random.set_state(state)
         super().__init__(lower, upper)
         if name not in ng.optimizers.registry:
             known = ("NGOpt", "CMA", "DE", "TwoPointsDE", "PSO", "OnePlusOne", "TBPSA", "RandomSearch",

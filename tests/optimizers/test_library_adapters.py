@@ -93,3 +93,19 @@ def test_nevergrad_runs_any_registry_name_with_num_workers_as_batch(name):
         assert X.shape == (6, 3) and np.all((X >= LOWER) & (X <= UPPER))
         opt.tell(X, _f(X))
     assert opt.best[1] == pytest.approx(min(_f(opt.best[0][None])))
+
+
+def test_the_first_nevergrad_plugin_built_in_a_process_leaves_the_global_rng_untouched():
+    # in a fresh interpreter, so that nevergrad's import (which draws from numpy's global
+    # generator) happens inside the plugin's constructor, whatever ran before in this process
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from optimizers.nevergrad_optimizer import Nevergrad\n"
+            "np.random.seed(12345); before = np.random.get_state()\n"
+            "Nevergrad(np.zeros(3), np.ones(3), seed=1)\n"
+            "after = np.random.get_state()\n"
+            "print(before[2] == after[2] and bool((before[1] == after[1]).all()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True"
