@@ -70,7 +70,8 @@ class Settings(NamedTuple):
     zero_velocity_sigma_mps: float  #: zero-velocity pseudo-measurement noise, m/s (Eq. 49); 0: off
     max_variance: float  #: divergence: largest covariance diagonal (Eq. 51)
     max_speed_mps: float  #: divergence: largest speed, m/s (Eq. 51)
-    #: J_f and G_f at the corrected pixels (Eqs. 35a-b), the step at most this long, px; 0: at the measured pixels
+    #: J_f (and G_f: correct_noise_model) at the corrected pixels (Eqs. 35a-c), the step at most this long, px;
+    #: 0: at the measured pixels
     correction_cap_px: float
     #: with correction_cap_px > 0: G_f (so R_f) at the corrected pixels too (Eq. 35a); False: J_f alone (Eq. 35c)
     correct_noise_model: bool
