@@ -80,6 +80,10 @@ all+=(innovation_nll_adjusted_fourdrive_7free_refall_1600evals_10seeds
 all+=(innovation_nll_adjusted_fourdrive_7free_refall_correctedjac_1600evals_10seeds
       innovation_nll_adjusted_fourdrive_10free_full3d_refall_correctedjac_1600evals_10seeds
       innovation_nll_adjusted_sixteendrive_7free_refall_correctedjac_1600evals_10seeds)
+# issue 33: the joint likelihood's two 16-drive rows with seeds 10-19 added (made from the _10seeds rows with
+# --seeds 20: does the corrected pixels' lead at 16 drives, 7 of 10 seeds, hold over twenty?)
+all+=(innovation_nll_joint_sixteendrive_7free_refall_1600evals_20seeds
+      innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_20seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
