@@ -104,6 +104,9 @@ def test_compare_pairs_two_configurations_by_seed(load_script):
     assert 0.0 < rot.wilcoxon_p < 0.05  # six of six lower: p = 2 / 2^6
     assert table.loc["focal_error_px"].a_lower == "0/6" and table.loc["focal_error_px"].wilcoxon_p == 1.0
     assert table.loc["holdout_rmse_m"].a_lower == "6/6"
+    # Holm over the six quantities: the smallest p times 6, and never below the raw p
+    assert rot.holm_p == pytest.approx(min(1.0, 6 * table.wilcoxon_p.min()))
+    assert (table.holm_p >= table.wilcoxon_p).all() and table.holm_p.max() == 1.0
     with pytest.raises(ValueError, match=r"no runs of \['c'\]"):
         module.compare_configs(a, "a", "c")
 
