@@ -18,12 +18,7 @@ This is a bound only as far as the joint likelihood is the data's likelihood
 studies/identifiability/minimiser_scatter.py predicts something else: where one objective's
 minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far above this bound.
 
-    python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4] [--typical] [--minimiser]
-
-``--minimiser`` prints beside the bound the errors of the likelihood's own exact minimiser over K
-drives, predicted from the same file (minimiser_covariance: the sandwich with the mean score's
-tilt). The bound over that prediction is the objective's efficiency; that prediction over the
-study's achieved errors is what the runs lose beyond the quadratic model (the optimiser, cells).
+    python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4] [--typical]
 """
 
 from __future__ import annotations
@@ -68,32 +63,12 @@ def bound_covariance(information: np.ndarray, K: int, A: np.ndarray | None = Non
     return np.linalg.inv(info)
 
 
-def minimiser_covariance(hessians: np.ndarray, gradients: np.ndarray, K: int,
-                         A: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The exact minimiser of *this* objective over K drives, to first order (the M-estimator
-    sandwich): its mean offset from the truth ``-(A^T H A)^-1 A^T gbar`` (r,) (the objective's own
-    tilt; K-free) and covariance ``(A^T H A)^-1 A^T G A (A^T H A)^-1 / K`` (r, r), from the per-drive
-    Hessians (D, p, p) and scores (D, p) at the truth (H their mean, gbar the scores' mean, G their
-    covariance). Where the information-matrix equality holds (G = H, gbar = 0) this is the bound."""
-    A = np.eye(hessians.shape[1]) if A is None else A
-    g = np.asarray(gradients, float)
-    Hr = A.T @ fisher_information(hessians) @ A
-    if np.linalg.eigvalsh(Hr)[0] <= 0:
-        raise np.linalg.LinAlgError("the mean Hessian is not positive definite: no minimum to predict")
-    Hinv = np.linalg.inv(Hr)
-    G = A.T @ np.cov(g.T) @ A
-    return -Hinv @ (A.T @ g.mean(axis=0)), Hinv @ G @ Hinv / K
-
-
-def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000,
-                 mean: np.ndarray | None = None) -> dict[str, float]:
-    """Median of each reported error over draws ``dy ~ N(mean, cov)`` (mean 0: an efficient
-    unbiased estimator; to_calibration(dy (draws, r)) -> Calibration batch; truth: Calibration
-    batch of 1)."""
+def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000) -> dict[str, float]:
+    """Median of each reported error over draws ``dy ~ N(0, cov)`` of an efficient estimator
+    (to_calibration(dy (draws, r)) -> Calibration batch; truth: Calibration batch of 1)."""
     from avio.calibration import calibration_errors
 
-    mean = np.zeros(len(cov)) if mean is None else mean
-    dy = rng.multivariate_normal(mean, cov, size=draws, method="eigh")
+    dy = rng.multivariate_normal(np.zeros(len(cov)), cov, size=draws, method="eigh")
     errs = calibration_errors(to_calibration(dy), truth)
     return {k: float(np.median(errs[k])) for k in ERRORS}
 
@@ -113,9 +88,6 @@ def main(argv=None) -> None:
                         help="the mean Hessian at the truth (default), or the scores' outer product (BHHH)")
     parser.add_argument("--typical", action="store_true",
                         help="only the typical drives (information_equality.typical: curvatures within 5 MADs)")
-    parser.add_argument("--minimiser", action="store_true",
-                        help="also the predicted errors of this likelihood's exact minimiser (the sandwich with "
-                             "its tilt, minimiser_covariance): how far the objective, not the optimiser, is from the bound")
     args = parser.parse_args(argv)
     saved = np.load(args.load)
     H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
@@ -133,12 +105,11 @@ def main(argv=None) -> None:
           f"{rig}, {free}")
     print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")
     print("|---|" + "---|" * (len(names) + len(ERRORS)))
-    problems = [Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local") for seed in args.seeds]
-
-    def medians(cov, mean=None) -> str:
-        """The medians over the cameras of each reported error's median over draws."""
+    for K in args.K:
+        cov = bound_covariance(info, K, A)
         per = {k: [] for k in ERRORS}
-        for problem in problems:
+        for seed in args.seeds:
+            problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
             cols = [problem.space.names.index(v) for v in measured]
 
             def decode(dy, problem=problem, cols=cols):
@@ -146,23 +117,10 @@ def main(argv=None) -> None:
                 X[:, cols] += dy @ A.T
                 return problem.calibration_space.decode(X)
 
-            for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng, mean=mean).items():
+            for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng).items():
                 per[k].append(v)
-        return " | ".join(f"{np.median(per[k]):.3g}" for k in ERRORS)
-
-    rows = []
-    for K in args.K:
-        cov = bound_covariance(info, K, A)
-        print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + f" | {medians(cov)} |")
-        if args.minimiser:
-            mean, cov_m = minimiser_covariance(H[keep], g[keep], K, A)
-            rows.append(f"| {K} | " + " | ".join(f"{b:+.2g} ± {s:.3g}" for b, s in zip(mean, np.sqrt(np.diag(cov_m))))
-                        + f" | {medians(cov_m, mean)} |")
-    if rows:
-        print(f"\nThe exact minimiser of this likelihood (sandwich, mean offset ± sd per variable; {keep.sum()} drives)")
-        print("| K | " + " | ".join(names) + " | " + " | ".join(ERRORS) + " |")
-        print("|---|" + "---|" * (len(names) + len(ERRORS)))
-        print("\n".join(rows))
+        print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
+              + " | ".join(f"{np.median(per[k]):.3g}" for k in ERRORS) + " |")
 
 
 if __name__ == "__main__":
