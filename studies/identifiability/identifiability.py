@@ -41,7 +41,7 @@ from avio.calibration import (
     ray_error_deg,
 )
 from avio.metrics import position_rmse_objective
-from bench.archive import has_records, job_records, pack
+from bench.archive import ARCHIVE, has_records, job_records, pack, unpack
 from bench.problems.synthetic import Synthetic, SyntheticParams
 from bench.problems.vio import _plain
 from bench.report import stats
@@ -214,6 +214,15 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
 
 
 COMPARED = ERRORS + ("ray_error_deg", "holdout_rmse_m")
+
+
+def restored_seeds(folder: Path) -> int:
+    """The finished jobs a configuration folder holds, its archive unpacked into it first (for
+    make_identifiability.sh --seeds, which adds the seeds it lacks and packs again). A folder that an
+    interrupted run left unpacked already holds its records: they are counted, never re-run."""
+    if (folder / ARCHIVE).is_file():
+        unpack(folder)
+    return sum(1 for _ in folder.glob("synthetic/*/*/record.json"))
 
 
 def compare_configs(runs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:

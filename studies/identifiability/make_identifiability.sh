@@ -111,12 +111,15 @@ for name in "$@"; do
   extra=(); [ "$free" = 7 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[dy,dz]')
   [ "$free" = 5 ] && extra=(problem.params.tie_focal=true 'problem.params.fixed=[cx,cy,dy,dz]')
   have=0 sweep="$out/$name"
-  if [ -n "$want" ] && [ -f "$out/$name/records.tar.xz" ]; then
-    # keep the configuration's finished jobs: restore them from the archive (the summary re-packs them)
+  if [ -n "$want" ] && { [ -f "$out/$name/records.tar.xz" ] || [ -d "$out/$name/synthetic" ]; }; then
+    # keep the configuration's finished jobs: restore them from the archive (the summary re-packs them), or
+    # count those an interrupted run left unpacked
     have=$(python - "$out/$name" <<'PY'
 import sys
-from bench.archive import unpack
-print(sum(m.name == "record.json" for m in unpack(sys.argv[1])))
+from pathlib import Path
+sys.path.insert(0, "studies/identifiability")
+from identifiability import restored_seeds
+print(restored_seeds(Path(sys.argv[1])))
 PY
 )
     if [ "$have" -ge "$seeds" ]; then echo "- $name: has $have seeds already"; continue; fi

@@ -149,6 +149,24 @@ def test_a_row_grown_by_added_seeds_reads_its_old_and_new_jobs_as_one_configurat
     assert sorted(runs.data_seed) == list(range(10)) and set(runs.decisions) == {"own"}
 
 
+def test_a_row_to_grow_is_restored_from_its_archive_or_counted_where_an_interrupted_run_left_it(load_script, tmp_path):
+    # make_identifiability --seeds: an archive is unpacked; a second call (the run in between was
+    # interrupted, the archive already unpacked) counts the same jobs instead of re-running them all
+    from bench.archive import ARCHIVE, pack
+
+    study = load_script("identifiability")
+    folder = tmp_path / "cfg"
+    for k in range(3):
+        job = folder / "synthetic" / "cmaes" / f"i{k}"
+        job.mkdir(parents=True)
+        (job / "record.json").write_text(json.dumps(_record(k)))
+    pack(folder, remove=True)
+    assert (folder / ARCHIVE).is_file() and not (folder / "synthetic").exists()
+    assert study.restored_seeds(folder) == 3 and not (folder / ARCHIVE).exists()
+    assert study.restored_seeds(folder) == 3
+    assert sorted(study.load(tmp_path).seed) == [0, 1, 2]
+
+
 @pytest.mark.parametrize("argv, says", [(["--seeds", "x"], "--seeds x: not a positive whole number"),
                                         (["--seeds", "0"], "--seeds 0: not a positive whole number"),
                                         (["--seeds", "10", "400", "nosuch"], "unknown configuration nosuch")])
