@@ -5,7 +5,10 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +24,60 @@ def pytest_configure(config):
     Set before xdist starts its workers: they and every subprocess share it."""
     if not os.environ.get("AVIO_CACHE_DIR") and not hasattr(config, "workerinput"):
         os.environ["AVIO_CACHE_DIR"] = config._avio_cache = tempfile.mkdtemp(prefix="avio-test-cache-")
+    if _warms_kernels(config):
+        _warm_kernels(config)
+
+
+# Under xdist every worker meets the filter kernel in its first tests, so on a fresh checkout each one
+# compiled it (~100 s on 2 cores) at the same time, and one of them then compiled the pinned commit's
+# kernel (test_against_history.py, ~80 s) alone. Before the workers start, the controller compiles both
+# into numba's caches, side by side in two processes; the workers then load them (a few seconds): the
+# suite saved ~40 s of its ~10 minutes on 2 cores. AVIO_TEST_NO_WARMUP=1 turns it off.
+_WARM = {
+    "kernel": "from avio.filter import FilterConfig, run\n"
+              "seq = make_circle_sequence(8, seed=0)\n"
+              "run(seq, seq.truth_calibration, FilterConfig())\n",
+    "reference kernel": "import importlib, git_reference\n"
+                        "from test_against_history import REFERENCE_COMMIT, _frozen_cal\n"
+                        "if git_reference.unavailable(REFERENCE_COMMIT) is None:\n"
+                        "    pkg = git_reference.load(REFERENCE_COMMIT)\n"
+                        "    filt = importlib.import_module(pkg.__name__ + '.filter')\n"
+                        "    seq = make_circle_sequence(8, seed=0)\n"
+                        "    filt.run(seq, _frozen_cal(pkg, seq.truth_calibration), filt.FilterConfig())\n",
+}
+
+
+def _warms_kernels(config) -> bool:
+    """Only the xdist controller of a run that includes tests/avio/filter (the whole suite, say)."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return False
+    if config.option.collectonly or os.environ.get("AVIO_TEST_NO_WARMUP"):
+        return False
+    target = REPO_ROOT / "tests" / "avio" / "filter"
+    paths = [Path(a.split("::")[0]).resolve() for a in config.args] or [REPO_ROOT / "tests"]
+    return any(target == p or p in target.parents for p in paths)
+
+
+def _warm_kernels(config) -> None:
+    """Compile the kernels of ``_WARM`` in parallel processes; a failure is left to the tests to report."""
+    t = time.monotonic()
+    prelude = (f"import sys; sys.path[:0] = [{str(REPO_ROOT)!r}, {str(REPO_ROOT / 'tests/avio/filter')!r}]\n"
+               "from test_filter import make_circle_sequence\n")
+    procs = {name: subprocess.Popen([sys.executable, "-c", prelude + code], cwd=REPO_ROOT,
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+             for name, code in _WARM.items()}
+    failed = []
+    for name, proc in procs.items():
+        try:
+            proc.wait(timeout=900)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        if proc.wait() != 0:
+            failed.append(name)
+    note = f"; {', '.join(failed)} failed (the tests say why)" if failed else ""
+    # pytest's own clock starts after this, so the summary says it (pytest_terminal_summary below)
+    config._avio_warmup = (f"before the workers started: {' and '.join(_WARM)} compiled or loaded in "
+                           f"{time.monotonic() - t:.0f} s (not in the time below){note}")
 
 
 def pytest_unconfigure(config):
@@ -67,6 +124,8 @@ def pytest_terminal_summary(terminalreporter):
     """``-rs`` lists each skip; those for missing real data (a few dozen when ../shared/data is absent)
     become one line per missing thing, with their count. Other skips are listed as usual, and the
     final counts are unchanged."""
+    if getattr(terminalreporter.config, "_avio_warmup", None):
+        terminalreporter.write_line(terminalreporter.config._avio_warmup)
     skipped = terminalreporter.stats.get("skipped", [])
     no_data_skips = [r for r in skipped if NO_DATA in _skip_reason(r)]
     if not no_data_skips or not terminalreporter.hasopt("s"):

@@ -145,8 +145,10 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     F = uv.shape[0]
     if pair23:
         for f in range(F):
+            # pair23, not the literal True: the same argument types as the call below, so numba compiles
+            # one_feature once, not twice (~12 s of the kernel's first compile).
             r[0, f], r[1, f], r[2, f], r[3, f] = one_feature(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL,
-                                                              GL, True)
+                                                              GL, pair23)
             _copy_out(JL, GL, 1, 0, 1, J, Gp, f)
     else:
         for f0 in range(0, F, LANES):
