@@ -3,6 +3,7 @@ in one process, and whether they give the same bits (issue 13's A/B of a kernel 
 
     python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
                                    [--set KEY=VALUE ...] [--tree-set KEY=VALUE ...]
+    python benchmarks/ab_kernel.py --base BASE --compile-pairs 5    # the first-run compile instead
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
 evaluation), so two benchmark runs one after the other can differ by 50 % with the same code.
@@ -18,6 +19,9 @@ statistics to the bit.
 The base commit may predate the package layout of e67dede (the kernel in avio/_kernels.py, the
 filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's layout is read
 from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
+
+``--compile-pairs K`` times the first-run compile instead: K pairs of processes, each with an empty
+numba cache, the CPU time of its first filter call (batch 1; the call that compiles the kernel).
 """
 
 from __future__ import annotations
@@ -121,6 +125,36 @@ def _overrides(flag: str, items: list[str]) -> dict:
     return out
 
 
+_COMPILE_ONE = """import sys, time
+sys.path[:0] = [{root!r}, {bench!r}, {repo!r}]
+import ab_kernel
+filt, seq, cfg, prep, cals = ab_kernel._load({name!r}, ab_kernel.Path({data!r}), 1)
+t = time.process_time()
+filt.run(seq, cals, cfg, prep)
+print(time.process_time() - t)
+"""
+
+
+def compile_pairs(base_root: Path, data: Path, pairs: int) -> None:
+    """``pairs`` pairs of cold first calls (CPU s, the call that compiles the kernel) of the base's and the
+    working tree's filter, each in its own process with an empty numba cache; the paired ratios."""
+    rng = np.random.default_rng(0)
+    cpu = {"base": [], "tree": []}
+    for _ in range(pairs):
+        for label in rng.permutation(["base", "tree"]):
+            code = _COMPILE_ONE.format(root=str(base_root), bench=str(REPO / "benchmarks"), repo=str(REPO),
+                                       name="avio_base" if label == "base" else "avio", data=str(data))
+            with tempfile.TemporaryDirectory(prefix="ab-compile-") as cache:
+                done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "NUMBA_CACHE_DIR": cache},
+                                      capture_output=True, text=True, check=True)
+            cpu[label].append(float(done.stdout.split()[-1]))
+            print(f"{label}: first call {cpu[label][-1]:.1f} s CPU", flush=True)
+    ratio = np.asarray(cpu["base"]) / np.asarray(cpu["tree"])
+    q1, q2, q3 = np.percentile(ratio, [25, 50, 75])
+    print(f"first-run compile, {pairs} pairs: base {np.median(cpu['base']):.1f} s, working tree "
+          f"{np.median(cpu['tree']):.1f} s CPU (medians); base/tree: median {q2:.3f}x (quartiles {q1:.3f}-{q3:.3f})")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", default="HEAD")
@@ -134,13 +168,23 @@ def main(argv=None) -> None:
     ap.add_argument("--tree-set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="FilterConfig overrides of the working tree's filter only (the cost of an option "
                          "against the base's default; the bits then differ), e.g. jacobian_pixels=corrected")
+    ap.add_argument("--compile-pairs", type=int, default=0, metavar="K",
+                    help="instead of timing evaluations: K pairs of first-run compiles of the two kernels, each in a "
+                         "fresh process with an empty NUMBA_CACHE_DIR (the first call at batch 1), in a random order "
+                         "per pair")
     args = ap.parse_args(argv)
+    if args.compile_pairs < 0:
+        print(f"ab_kernel: --compile-pairs {args.compile_pairs}: expected an integer >= 0", file=sys.stderr)
+        raise SystemExit(2)
     both_set, tree_set = _overrides("--set", args.set), _overrides("--tree-set", args.tree_set)
     data = Path(args.data)
     if not (data / "kitti00").is_dir():
         print(f"ab_kernel: no KITTI 00 data at {data / 'kitti00'} (--data or AVIO_DATA)", file=sys.stderr)
         raise SystemExit(2)
-    sys.path.insert(0, str(extract_base(args.base)))
+    base_root = extract_base(args.base)
+    if args.compile_pairs:
+        return compile_pairs(base_root, data, args.compile_pairs)
+    sys.path.insert(0, str(base_root))
     runs = {}
     for label, name in (("base", "avio_base"), ("tree", "avio")):
         filt, seq, cfg, prep, cals = _load(name, data, args.batch, {**both_set, **(tree_set if label == "tree" else {})})
