@@ -3,11 +3,16 @@ run that includes tests/avio/filter, and says how long it took or which compile 
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
 from types import SimpleNamespace
 
-import conftest
 import pytest
 
+# By path: in the whole suite the name ``conftest`` may be another folder's conftest.py.
+_SPEC = importlib.util.spec_from_file_location("_tests_conftest", Path(__file__).with_name("conftest.py"))
+conftest = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(conftest)
 TESTS = conftest.REPO_ROOT / "tests"
 
 
