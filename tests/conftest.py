@@ -31,8 +31,8 @@ def pytest_configure(config):
 # Under xdist every worker meets the filter kernel in its first tests, so on a fresh checkout each one
 # compiled it (~100 s on 2 cores) at the same time, and one of them then compiled the pinned commit's
 # kernel (test_against_history.py, ~80 s) alone. Before the workers start, the controller compiles both
-# into numba's caches, side by side in two processes; the workers then load them (a few seconds): the
-# suite saved ~40 s of its ~10 minutes on 2 cores. AVIO_TEST_NO_WARMUP=1 turns it off.
+# into numba's caches, side by side in two processes; the workers then load them (a few seconds): on 2
+# cores the suite went from 551-603 s to 473-541 s (benchmarks/README.md). AVIO_TEST_NO_WARMUP=1 turns it off.
 _WARM = {
     "kernel": "from avio.filter import FilterConfig, run\n"
               "seq = make_circle_sequence(8, seed=0)\n"
@@ -123,7 +123,7 @@ def _skip_reason(report) -> str:
 def pytest_terminal_summary(terminalreporter):
     """``-rs`` lists each skip; those for missing real data (a few dozen when ../shared/data is absent)
     become one line per missing thing, with their count. Other skips are listed as usual, and the
-    final counts are unchanged."""
+    final counts are unchanged. First, the warm-up's line (``_warm_kernels``), if it ran."""
     if getattr(terminalreporter.config, "_avio_warmup", None):
         terminalreporter.write_line(terminalreporter.config._avio_warmup)
     skipped = terminalreporter.stats.get("skipped", [])
