@@ -36,15 +36,22 @@ def ref():
     why = git_reference.unavailable(REFERENCE_COMMIT)
     if why:
         pytest.skip(f"bit-identity guard against {REFERENCE_COMMIT[:12]} skipped: {why}")
-    pkg = git_reference.load(REFERENCE_COMMIT)
-    filt = importlib.import_module(f"{pkg.__name__}.filter")
     t = time.process_time()
-    seq = make_circle_sequence(8, seed=0)
-    filt.run(seq, _frozen_cal(pkg, seq.truth_calibration), filt.FilterConfig())
+    pkg = compiled_reference()
     print(f"reference {REFERENCE_COMMIT[:12]}: kernel compiled or loaded in {time.process_time() - t:.1f} s CPU")
     yield pkg
-    filt.set_threads(None)
+    importlib.import_module(f"{pkg.__name__}.filter").set_threads(None)
     set_threads(None)
+
+
+def compiled_reference():
+    """The avio package of REFERENCE_COMMIT with its kernel compiled (or loaded from numba's cache) by one
+    short run; tests/conftest.py calls it too, before the xdist workers start."""
+    pkg = git_reference.load(REFERENCE_COMMIT)
+    filt = importlib.import_module(f"{pkg.__name__}.filter")
+    seq = make_circle_sequence(8, seed=0)
+    filt.run(seq, _frozen_cal(pkg, seq.truth_calibration), filt.FilterConfig())
+    return pkg
 
 
 def _frozen_cal(pkg, cal: Calibration):
