@@ -84,6 +84,10 @@ all+=(innovation_nll_adjusted_fourdrive_7free_refall_correctedjac_1600evals_10se
 # --seeds 20: does the corrected pixels' lead at 16 drives, 7 of 10 seeds, hold over twenty?)
 all+=(innovation_nll_joint_sixteendrive_7free_refall_1600evals_20seeds
       innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_20seeds)
+# --seeds 25 (the _20seeds rows' records copied in first, seeds 20-24 added): is the corrected pixels'
+# undecided lead at twenty seeds (p = 0.097) decided by five more?
+all+=(innovation_nll_joint_sixteendrive_7free_refall_1600evals_25seeds
+      innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_25seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
