@@ -79,9 +79,10 @@ def threads() -> int:
     return _THREADS if _THREADS is not None else default_threads()
 
 
-#: Measured first-run compile time of the kernel on the 2-core development machine, seconds
-#: (benchmarks/bench_filter.py speed prints it), quoted in the message before a cold compile.
-COMPILE_ESTIMATE_S = 55
+#: First-run compile time of the kernel, seconds, quoted in the message before a cold compile:
+#: measured 50-57 s CPU on a 2-core AVX-512 machine (2026-12-05) and 68-101 s on a 2-core AVX2
+#: one (2026-12-06; benchmarks/README.md, `python benchmarks/ab_kernel.py --compile-pairs`).
+COMPILE_ESTIMATE_S = 80
 _HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
 _kernel_loaded = False
 
