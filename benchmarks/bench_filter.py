@@ -21,7 +21,7 @@ speed: complete evaluations per second on kitti00 frames 15–796 (782 frames) f
     wall time (psoga, 500 evaluations on ``synthetic``) and the first-run compile time (a
     subprocess with an empty NUMBA_CACHE_DIR).
 profile: cProfile of one batch, top functions by own time.
-schedule: how the batch is split over two threads: the batches a default job asked (psoga seed 0
+schedule: how the batch is split over two threads: the batches a default job asked (psoga instance 0
     on ``synthetic``, run first unless --evals names a job's evals.jsonl) replayed filter by
     filter on one thread, and the two-thread time each split would take from those times (one
     task per filter, as avio.filter runs them; four contiguous ranges per thread, as it did),
@@ -260,9 +260,8 @@ def speed(args, config: FilterConfig) -> None:
         walls = []
         for i in range(args.job_repeats):
             with tempfile.TemporaryDirectory() as tmp:
-                walls.append(_subprocess_s([sys.executable, "-m", "bench", "optimizer=psoga", "seed=0", "report=false",
-                                            f"hydra.sweep.dir={tmp}/sweep"])[0])
-        print(f"default job (python -m bench optimizer=psoga seed=0 report=false, synthetic, 500 evaluations, "
+                walls.append(_subprocess_s([sys.executable, "-m", "bench", *DEFAULT_JOB, f"hydra.sweep.dir={tmp}/sweep"])[0])
+        print(f"default job (python -m bench {' '.join(DEFAULT_JOB)}, synthetic, "
               f"kernel cached): {np.median(walls):.1f} s wall (median of {len(walls)}: "
               f"{', '.join(f'{w:.1f}' for w in walls)})", flush=True)
     if "compile" not in args.skip:
@@ -318,16 +317,23 @@ def _makespan(costs, bounds, n_threads: int = 2) -> float:
     return max(free)
 
 
+#: One job of the default problem at issue 30's size (psoga, instance 0, 500 evaluations), not the
+#: default sweep (python -m bench alone runs 12 instances x 6 optimisers since the design of
+#: docs/guide/verdicts.md); the same command as benchmarks/README.md's default-job rows.
+DEFAULT_JOB = ("optimizer=psoga", "instance=0", "budget.evals=500", "report=false")
+
+
 def schedule(args) -> None:
     import json
 
     from bench.problems.synthetic import Synthetic
 
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(args.evals) if args.evals else Path(tmp) / "sweep" / "synthetic" / "psoga" / "seed0" / "evals.jsonl"
-        if not args.evals:
-            _subprocess_s([sys.executable, "-m", "bench", "optimizer=psoga", "seed=0", "report=false",
-                           f"hydra.sweep.dir={tmp}/sweep"])
+        if args.evals:
+            path = Path(args.evals)
+        else:
+            _subprocess_s([sys.executable, "-m", "bench", *DEFAULT_JOB, f"hydra.sweep.dir={tmp}/sweep"])
+            path, = (Path(tmp) / "sweep" / "synthetic" / "psoga").glob("*/evals.jsonl")
         batches = [np.asarray(json.loads(line)["X"], float) for line in path.read_text().splitlines()]
     problem = Synthetic(holdout=None, space="paper", filter=_parse_set(args.set) or None)  # the default job's problem
     totals = dict.fromkeys(("one filter", "one task per filter", "four ranges per thread", "ideal", "measured"), 0.0)
@@ -349,7 +355,7 @@ def schedule(args) -> None:
         problem.run_filter(cal)
         totals["measured"] += time.perf_counter() - t0
     set_threads(None)
-    print(f"default job's {len(batches)} batches of {len(batches[0])} (psoga seed 0, synthetic): one filter at a time "
+    print(f"default job's {len(batches)} batches of {len(batches[0])} (psoga instance 0, synthetic): one filter at a time "
           f"{totals['one filter']:.2f} s; on 2 threads, from those times: one task per filter (avio.filter) "
           f"{totals['one task per filter']:.2f} s, four ranges per thread {totals['four ranges per thread']:.2f} s "
           f"({totals['four ranges per thread'] / totals['one task per filter']:.3f}x), ideal {totals['ideal']:.2f} s; "
