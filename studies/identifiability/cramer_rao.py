@@ -73,12 +73,71 @@ def error_bounds(cov: np.ndarray, to_calibration, truth, rng, draws: int = 4000)
     return {k: float(np.median(errs[k])) for k in ERRORS}
 
 
+def median_error_bounds(cov: np.ndarray, A: np.ndarray, measured: tuple[str, ...], rig: str, seeds, rng) -> dict[str, float]:
+    """Each reported error's bound (:func:`error_bounds`), the median over cameras ``seeds`` of ``rig``
+    (cov (r, r) of the free variables, A (len(measured), r) maps them into the measured ones)."""
+    from bench.problems.synthetic import Synthetic
+
+    per = {k: [] for k in ERRORS}
+    for seed in seeds:
+        problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
+        cols = [problem.space.names.index(v) for v in measured]
+
+        def decode(dy, problem=problem, cols=cols):
+            X = np.repeat(problem.truth[None], len(dy), axis=0)
+            X[:, cols] += dy @ A.T
+            return problem.calibration_space.decode(X)
+
+        for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng).items():
+            per[k].append(v)
+    return {k: float(np.median(v)) for k, v in per.items()}
+
+
+#: the variables each reported error measures: its bound applies where all of them are free
+ERROR_VARIABLES = {"rotation_error_deg": ("rx", "ry", "rz"), "focal_error_px": ("fx", "fy"),
+                   "principal_point_error_px": ("cx", "cy"), "translation_error_cm": ("dx", "dy", "dz")}
+#: the local space's variables (bench/problems/calibration_space.py), td last where it is free
+SPACE_VARIABLES = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
+
+
+def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_time_offset: bool = False,
+                        seeds=(0, 1, 2, 3, 4), rng=None) -> dict | None:
+    """The bound on each reported error of a study configuration: K drives of the rig of ``saved``
+    (an information_equality.py --save file, loaded), its free variables (the local space's ten
+    less ``fixed``, fy tied to fx with ``tie_focal``, the time offset with ``with_time_offset``).
+    None where a free variable is not among the file's measured ones (no bound from it). The
+    information: the mean Hessian where it is positive definite in the free variables, else the
+    scores' outer product (the excited rig's mean Hessian is indefinite, studies/identifiability/README.md).
+    Returns {"information": "hessian" | "opg", error: median bound, or None where the error's variables are
+    not all free (a fixed variable's error is the fixed value's, not an estimate's)}."""
+    from information_equality import VARS
+    from objective_bias import DRIVE
+
+    rig = str(saved["rig"]) if "rig" in saved else DRIVE  # files saved before --rig: the flat city
+    measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else VARS
+    free = [v for v in SPACE_VARIABLES + (("td",) if with_time_offset else ()) if v not in fixed
+            and not (tie_focal and v == "fy")]
+    if any(v not in measured for v in free):
+        return None
+    A = np.zeros((len(measured), len(free)))
+    for j, v in enumerate(free):
+        A[measured.index(v), j] = 1.0
+        if tie_focal and v == "fx":
+            A[measured.index("fy"), j] = 1.0
+    H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
+    info, kind = fisher_information(H), "hessian"
+    if np.linalg.eigvalsh(A.T @ info @ A)[0] <= 0:
+        info, kind = outer_product_information(g), "opg"
+    cov = bound_covariance(info, K, A)
+    errs = median_error_bounds(cov, A, measured, rig, seeds, rng if rng is not None else np.random.default_rng(0))
+    return {"information": kind, **{k: (v if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k])
+                                       else None) for k, v in errs.items()}}
+
+
 def main(argv=None) -> None:
     sys.path.insert(0, str(ROOT / "studies" / "objective"))
     from information_equality import A7, VARS, typical
     from objective_bias import DRIVE
-
-    from bench.problems.synthetic import Synthetic
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--load", type=Path, required=True, help="studies/objective/information_equality.py --save file")
@@ -107,20 +166,9 @@ def main(argv=None) -> None:
     print("|---|" + "---|" * (len(names) + len(ERRORS)))
     for K in args.K:
         cov = bound_covariance(info, K, A)
-        per = {k: [] for k in ERRORS}
-        for seed in args.seeds:
-            problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
-            cols = [problem.space.names.index(v) for v in measured]
-
-            def decode(dy, problem=problem, cols=cols):
-                X = np.repeat(problem.truth[None], len(dy), axis=0)
-                X[:, cols] += dy @ A.T
-                return problem.calibration_space.decode(X)
-
-            for k, v in error_bounds(cov, decode, problem.sequence.truth_calibration, rng).items():
-                per[k].append(v)
+        errs = median_error_bounds(cov, A, measured, rig, args.seeds, rng)
         print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
-              + " | ".join(f"{np.median(per[k]):.3g}" for k in ERRORS) + " |")
+              + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
 
 
 if __name__ == "__main__":

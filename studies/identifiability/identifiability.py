@@ -119,7 +119,36 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out).set_index("index")
 
 
-def summarise(runs: pd.DataFrame) -> pd.DataFrame:
+def bounds_in(folder: Path):
+    """The configuration's Cramér–Rao bound (cramer_rao.configuration_bound) from the folder's
+    ``information_*.npz`` (studies/objective/information_equality.py --save, one per rig): a function
+    of a run's row (:func:`load`) giving the bound's dict or None (no file for its rig, a free variable
+    the file did not measure, or several noise realisations of one drive: not independent drives)."""
+    sys.path[:0] = [str(ROOT / "studies" / "identifiability"), str(ROOT / "studies" / "objective")]
+    from cramer_rao import configuration_bound
+
+    saved = {}
+    for path in sorted(folder.glob("information_*.npz")):
+        data = dict(np.load(path))
+        saved[str(data.get("rig", "paper_540m"))] = data  # files saved before --rig: the flat city
+    cache = {}
+
+    def bound(row) -> dict | None:
+        params = row["params"]
+        key = (row["rig"], row["drives"], tuple(params.get("fixed") or ()), bool(params.get("tie_focal")),
+               bool(params.get("with_time_offset")))
+        if row["rig"] not in saved or row["noise_realisations"] > 1:
+            return None
+        if key not in cache:
+            cache[key] = configuration_bound(saved[row["rig"]], row["drives"], key[2], key[3], key[4])
+        return cache[key]
+
+    return bound
+
+
+def summarise(runs: pd.DataFrame, bound=lambda row: None) -> pd.DataFrame:
+    """One row per configuration: medians over its seeds; with ``bound`` (:func:`bounds_in`) each error's
+    Cramér–Rao bound and the efficiency, bound ÷ achieved median (issue 33)."""
     rows = []
     for _, g in runs.groupby("config", sort=False):  # one configuration per folder (which variables are free, too)
         first = g.iloc[0]
@@ -143,6 +172,12 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         # converged (the likelihood's 4-drive, 7-free runs all end below f(truth) at 400
         # evaluations, and on seeds 0-4 1,600 cut their rotation error from 0.54 to 0.15 deg).
         row["best_below_truth"] = f"{int((g.best_f < g.f_truth).sum())}/{len(g)}"
+        bounds = bound(first) or {}
+        row["bound_information"] = bounds.get("information")
+        for k in ERRORS:
+            b = bounds.get(k)
+            row[f"bound_{k}"] = b
+            row[f"efficiency_{k}"] = b / row[k] if b is not None else None
         rows.append(row)
     return ordered(pd.DataFrame(rows))
 
@@ -169,7 +204,8 @@ def markdown(summary: pd.DataFrame) -> str:
     """The summary (:func:`summarise`, in its order) as the Markdown table of studies/identifiability/README.md."""
     lines = ["| objective | drives | free | evaluations | seeds | rotation (deg) | focal (px) | principal point (px) | "
              "lever arm (cm) | ray error (deg) | held-out RMSE (m) | held-out − truth, paired (m) | held-out better "
-             "than reference / than truth | best f below f(truth) |", "|" + "---|" * 14]
+             "than reference / than truth | best f below f(truth) | efficiency: rotation / focal / principal point / "
+             "lever arm |", "|" + "---|" * 15]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
         rig = getattr(r, "rig", "paper_540m")
@@ -179,8 +215,19 @@ def markdown(summary: pd.DataFrame) -> str:
         lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
-                     f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} |")
+                     f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} | "
+                     f"{_efficiencies(r)} |")
     return "\n".join(lines) + "\n"
+
+
+def _efficiencies(r) -> str:
+    """The row's efficiencies, bound ÷ achieved: '—' for an error whose variables are not all free, blank
+    without a bound (OPG: the bound from the scores' outer product)."""
+    if not isinstance(getattr(r, "bound_information", None), str):
+        return ""
+    vals = [getattr(r, f"efficiency_{k}") for k in ERRORS]
+    text = " / ".join("—" if v is None or pd.isna(v) else f"{v:.2f}" for v in vals)
+    return text + (" (OPG)" if r.bound_information == "opg" else "")
 
 
 def figure(summary: pd.DataFrame, path: Path) -> None:
@@ -272,7 +319,7 @@ def main() -> None:
     runs = load(folder)
     runs = runs.join(held_out(runs))
     runs.drop(columns=["params", "best_x"]).to_csv(folder / "runs.csv", index=False, float_format="%.6g")
-    summary = summarise(runs)
+    summary = summarise(runs, bounds_in(folder))
     summary.to_csv(folder / "summary.csv", index=False, float_format="%.4g")
     (folder / "summary.md").write_text(markdown(summary))
     figure(summary, folder / "summary.png")

@@ -64,3 +64,51 @@ def test_error_bounds_are_the_medians_of_the_errors_of_efficient_draws(load_scri
     assert out["focal_error_px"] == pytest.approx(2.0 * 0.6745, rel=0.03)  # median |N(0, 2^2)|
     assert out["rotation_error_deg"] == 0.0 and out["translation_error_cm"] == 0.0
 
+
+
+def _saved(H, g, rig="paper_540m", variables=("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx")):
+    return {"rig": np.array(rig), "vars": np.array(variables), "innovation_nll_joint_H": H, "innovation_nll_joint_g": g}
+
+
+def test_a_configurations_bound_maps_its_free_variables_and_reports_only_errors_it_estimates(load_script, monkeypatch):
+    module = load_script("cramer_rao")
+    seen = {}
+
+    def fake_medians(cov, A, measured, rig, seeds, rng):  # the drawn errors need the simulator: checked above
+        seen.update(cov=cov, A=A, rig=rig)
+        return {k: 1.0 for k in module.ERRORS}
+
+    monkeypatch.setattr(module, "median_error_bounds", fake_medians)
+    info = np.diag([4.0, 2.0, 1.0, 1.0, 9.0, 9.0, 16.0, 25.0])
+    H = np.repeat(info[None], 3, axis=0)
+    g = np.zeros((3, 8))
+    # the flat city's 7 free: fy tied to fx, dy and dz fixed
+    out = module.configuration_bound(_saved(H, g), 4, fixed=("dy", "dz"), tie_focal=True)
+    assert out["information"] == "hessian" and seen["rig"] == "paper_540m"
+    np.testing.assert_allclose(seen["cov"][0, 0], 1 / (4 * 6.0))  # f = fx = fy: 4 + 2 per drive, 4 drives
+    np.testing.assert_allclose(np.diag(seen["cov"])[1:], 1 / (4 * info.diagonal()[2:]))
+    assert out["rotation_error_deg"] == 1.0 and out["focal_error_px"] == 1.0
+    assert out["translation_error_cm"] is None  # dy, dz fixed: the lever arm's error is not an estimate's
+    # the principal point frozen too (5 free): its error is the frozen value's
+    five = module.configuration_bound(_saved(H, g), 4, fixed=("cx", "cy", "dy", "dz"), tie_focal=True)
+    assert five["principal_point_error_px"] is None and seen["cov"].shape == (5, 5)
+    # dy, dz free on a file that did not measure them: no bound
+    assert module.configuration_bound(_saved(H, g), 4) is None
+    # the time offset free and not measured: none either
+    ten = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
+    H10 = np.repeat(np.eye(10)[None], 3, axis=0)
+    assert module.configuration_bound(_saved(H10, np.zeros((3, 10)), "full3d_540m", ten), 1, with_time_offset=True) is None
+
+
+def test_an_indefinite_mean_hessian_falls_back_to_the_scores_outer_product(load_script, monkeypatch):
+    module = load_script("cramer_rao")
+    seen = {}
+    monkeypatch.setattr(module, "median_error_bounds",
+                        lambda cov, *a: seen.update(cov=cov) or {k: 1.0 for k in module.ERRORS})
+    ten = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
+    H = np.repeat(np.diag([-1.0] + [1.0] * 9)[None], 4, axis=0)
+    g = np.random.default_rng(0).standard_normal((4000, 10))
+    H = np.repeat(H[:1], 4000, axis=0)
+    out = module.configuration_bound(_saved(H, g, "full3d_540m", ten), 4)
+    assert out["information"] == "opg" and out["translation_error_cm"] == 1.0
+    np.testing.assert_allclose(seen["cov"], np.linalg.inv(4 * g.T @ g / len(g)))

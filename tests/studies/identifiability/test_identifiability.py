@@ -51,7 +51,7 @@ def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_sc
     rows = module.markdown(module.summarise(runs)).splitlines()
     assert len(rows) == 4 and rows[0].startswith("| objective |")
     assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 2 | 0.50 |")  # the paper's objective first
-    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 | 2 |") and rows[3].endswith("| 2/2 |")
+    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 | 2 |") and rows[3].endswith("| 2/2 |  |")  # no bound
 
 
 def test_a_configuration_with_more_seeds_follows_the_same_one_with_fewer(load_script):
@@ -174,3 +174,19 @@ def test_the_study_script_refuses_bad_input_with_exit_2_before_any_run(argv, say
     script = Path(__file__).parents[3] / "studies" / "identifiability" / "make_identifiability.sh"
     proc = subprocess.run(["bash", str(script), *argv], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and says in proc.stderr and "Jobs:" not in proc.stdout, proc.stderr
+
+
+def test_each_rows_efficiency_is_its_bound_over_its_median_error(load_script):
+    module = load_script("identifiability")
+    runs = _runs(module, "a", best_f=[1.0] * 3, f_truth=[2.0] * 3, holdout=[1.0] * 3, holdout_truth=[1.0] * 3)
+
+    def bound(row):  # the study's own comes from cramer_rao.configuration_bound (tests/.../test_cramer_rao.py)
+        return {"information": "opg", "rotation_error_deg": 0.5, "focal_error_px": 0.25,
+                "principal_point_error_px": 2.0, "translation_error_cm": None}
+
+    summary = module.summarise(runs, bound)
+    row = summary.iloc[0]  # the median error of each kind is 1.0
+    assert row.efficiency_rotation_error_deg == 0.5 and row.efficiency_focal_error_px == 0.25
+    assert row.efficiency_principal_point_error_px == 2.0 and pd.isna(row.efficiency_translation_error_cm)
+    assert row.bound_information == "opg"
+    assert module.markdown(summary).splitlines()[2].endswith("| 0.50 / 0.25 / 2.00 / — (OPG) |")
