@@ -100,6 +100,71 @@ ERROR_VARIABLES = {"rotation_error_deg": ("rx", "ry", "rz"), "focal_error_px": (
 SPACE_VARIABLES = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
 
 
+def saved_rig(saved) -> tuple[str, tuple[str, ...]]:
+    """(rig, measured variables) of an information_equality.py --save file (files saved before --rig:
+    the flat city, its 8 variables)."""
+    from information_equality import VARS
+    from objective_bias import DRIVE
+
+    rig = str(saved["rig"]) if "rig" in saved else DRIVE
+    return rig, (tuple(str(v) for v in saved["vars"]) if "vars" in saved else VARS)
+
+
+def configuration_map(measured: tuple[str, ...], fixed=(), tie_focal: bool = False,
+                      with_time_offset: bool = False) -> tuple[np.ndarray, list[str]] | None:
+    """(A, free): a configuration's free variables (the local space's ten less ``fixed``, fy tied to
+    fx with ``tie_focal``, the time offset with ``with_time_offset``) and A (len(measured), len(free))
+    mapping them into the measured ones; None where a free variable was not measured."""
+    free = [v for v in SPACE_VARIABLES + (("td",) if with_time_offset else ()) if v not in fixed
+            and not (tie_focal and v == "fy")]
+    if any(v not in measured for v in free):
+        return None
+    A = np.zeros((len(measured), len(free)))
+    for j, v in enumerate(free):
+        A[measured.index(v), j] = 1.0
+        if tie_focal and v == "fx":
+            A[measured.index("fy"), j] = 1.0
+    return A, free
+
+
+def frozen_shift(information: np.ndarray, A: np.ndarray, B: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """(r,) first-order shift of the likelihood's expected minimum in the free variables when the
+    variables B (p, q) maps are held off the truth by delta (q,): the minimum of the quadratic
+    ``½ (A y + B δ)ᵀ I (A y + B δ)``, ``y = -(Aᵀ I A)⁻¹ Aᵀ I B δ`` (I the curvature per drive: the
+    number of drives cancels, so it is the limit of any number of drives, a bias and not a scatter)."""
+    return -np.linalg.solve(A.T @ information @ A, A.T @ information @ B @ delta)
+
+
+def frozen_errors(saved, fixed, tie_focal: bool, seeds) -> list[dict[str, float]]:
+    """Per camera of ``seeds``: the reported errors at the joint likelihood's first-order limit
+    (:func:`frozen_shift`, mean Hessian) when ``fixed`` are held at the reference, as the study's runs
+    hold them (the local space around the reference), and the offsets (local units) they are held at."""
+    from avio.calibration import calibration_errors
+    from bench.problems.synthetic import Synthetic
+
+    rig, measured = saved_rig(saved)
+    A, _ = configuration_map(measured, fixed, tie_focal)
+    held = [v for v in fixed if v in measured]
+    B = np.zeros((len(measured), len(held)))
+    for j, v in enumerate(held):
+        B[measured.index(v), j] = 1.0
+    info = fisher_information(saved["innovation_nll_joint_H"])
+    out = []
+    for seed in seeds:
+        problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
+        names = problem.space.names
+        x_ref = problem.calibration_space.encode(problem.sequence.reference_calibration)[0]
+        delta = np.array([x_ref[names.index(v)] - problem.truth[names.index(v)] for v in held])
+        X = problem.truth.copy()
+        X[[names.index(v) for v in measured]] += A @ frozen_shift(info, A, B, delta) + B @ delta
+        for v in fixed:  # a frozen variable the file did not measure: held at the reference as well
+            if v not in held:
+                X[names.index(v)] = x_ref[names.index(v)]
+        errs = calibration_errors(problem.calibration_space.decode(X[None]), problem.sequence.truth_calibration)
+        out.append({**{k: float(errs[k][0]) for k in ERRORS}, **{f"offset_{v}": float(d) for v, d in zip(held, delta)}})
+    return out
+
+
 def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_time_offset: bool = False,
                         seeds=(0, 1, 2, 3, 4), rng=None) -> dict | None:
     """The bound on each reported error of a study configuration: K drives of the rig of ``saved``
@@ -110,20 +175,11 @@ def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_t
     scores' outer product (the excited rig's mean Hessian is indefinite, studies/identifiability/README.md).
     Returns {"information": "hessian" | "opg", error: median bound, or None where the error's variables are
     not all free (a fixed variable's error is the fixed value's, not an estimate's)}."""
-    from information_equality import VARS
-    from objective_bias import DRIVE
-
-    rig = str(saved["rig"]) if "rig" in saved else DRIVE  # files saved before --rig: the flat city
-    measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else VARS
-    free = [v for v in SPACE_VARIABLES + (("td",) if with_time_offset else ()) if v not in fixed
-            and not (tie_focal and v == "fy")]
-    if any(v not in measured for v in free):
+    rig, measured = saved_rig(saved)
+    mapped = configuration_map(measured, fixed, tie_focal, with_time_offset)
+    if mapped is None:
         return None
-    A = np.zeros((len(measured), len(free)))
-    for j, v in enumerate(free):
-        A[measured.index(v), j] = 1.0
-        if tie_focal and v == "fx":
-            A[measured.index("fy"), j] = 1.0
+    A, free = mapped
     H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
     info, kind = fisher_information(H), "hessian"
     if np.linalg.eigvalsh(A.T @ info @ A)[0] <= 0:
@@ -136,7 +192,7 @@ def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_t
 
 def main(argv=None) -> None:
     sys.path.insert(0, str(ROOT / "studies" / "objective"))
-    from information_equality import A7, VARS, typical
+    from information_equality import VARS, free_map, typical
     from objective_bias import DRIVE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -147,18 +203,22 @@ def main(argv=None) -> None:
                         help="the mean Hessian at the truth (default), or the scores' outer product (BHHH)")
     parser.add_argument("--typical", action="store_true",
                         help="only the typical drives (information_equality.typical: curvatures within 5 MADs)")
+    parser.add_argument("--frozen", nargs="+", metavar="VAR",
+                        help="instead: the errors at the likelihood's limit with these variables held at the reference "
+                             "(fy tied to fx on the flat city), e.g. dy dz (the 7-free rows) or cx cy dy dz (the 5-free)")
     args = parser.parse_args(argv)
     saved = np.load(args.load)
+    if args.frozen:
+        return print_frozen(saved, tuple(args.frozen), args.seeds)
     H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
     keep = typical(H) if args.typical else np.ones(len(H), bool)
     info = fisher_information(H[keep]) if args.information == "hessian" else outer_product_information(g[keep])
     rng = np.random.default_rng(0)
     # the file's rig (files saved before --rig: the flat city, 8 measured, 7 free)
-    rig = str(saved["rig"]) if "rig" in saved else DRIVE
-    measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else VARS
-    A = A7 if rig == DRIVE else np.eye(len(measured))
+    rig, measured = saved_rig(saved)
+    A = free_map(rig, measured)
     names = ("f",) + VARS[2:] if rig == DRIVE else measured
-    free = "7 free (fy = fx, dy, dz frozen)" if rig == DRIVE else f"all {len(measured)} free"
+    free = "7 free (fy = fx, dy, dz at the truth)" if rig == DRIVE else f"all {len(measured)} free"
     print(f"Fisher information of the joint likelihood per drive ({keep.sum()}{' typical' if args.typical else ''} "
           f"drives, {'mean Hessian' if args.information == 'hessian' else 'outer product of the scores'}); "
           f"{rig}, {free}")
@@ -169,6 +229,28 @@ def main(argv=None) -> None:
         errs = median_error_bounds(cov, A, measured, rig, args.seeds, rng)
         print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
               + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
+
+
+def print_frozen(saved, fixed: tuple[str, ...], seeds) -> None:
+    """The table of :func:`frozen_errors`: per camera and the median."""
+    from objective_bias import DRIVE
+
+    rig, measured = saved_rig(saved)
+    tie = rig == DRIVE
+    missing = [v for v in ("dy", "dz") if v in fixed and v not in measured]
+    if missing:
+        raise SystemExit(f"cramer_rao --frozen: the file did not measure {', '.join(missing)} "
+                         "(information_equality.py --all-ten)")
+    rows = frozen_errors(saved, fixed, tie, seeds)
+    print(f"The joint likelihood's first-order limit (any number of drives) on {rig} with {', '.join(fixed)} "
+          f"held at the reference{' and fy tied to fx' if tie else ''}: the reported errors there")
+    offsets = [k for k in rows[0] if k.startswith("offset_")]
+    print("| camera | " + " | ".join(ERRORS) + " | " + " | ".join(offsets) + " |")
+    print("|---|" + "---|" * (len(ERRORS) + len(offsets)))
+    for seed, row in zip(seeds, rows):
+        print(f"| {seed} | " + " | ".join(f"{row[k]:.3g}" for k in ERRORS + tuple(offsets)) + " |")
+    print("| median | " + " | ".join(f"{np.median([r[k] for r in rows]):.3g}" for k in ERRORS) + " |"
+          + " |" * len(offsets))
 
 
 if __name__ == "__main__":

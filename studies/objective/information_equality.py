@@ -23,7 +23,7 @@ the per-residual objective times its calibration-free slot count). Reported per 
   the median or negative, and swing the mean Hessian's weak directions), with the per-variable
   ratios ``G_ii / H_ii`` (1 where the equality holds).
 
-    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--save F.npz] [--load F.npz]
+    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--all-ten] [--save F.npz] [--load F.npz]
     python studies/objective/information_equality.py --profile SEED DRIVE VAR [--filter JSON]
 
 ``--profile`` follows one drive (camera SEED, fresh drive DRIVE) along one variable, from -1 to
@@ -85,9 +85,18 @@ def drive_totals(problem: Synthetic, batch, drive) -> dict[str, np.ndarray] | No
     return {k: v * slots for k, v in per.items()}
 
 
-def rig_vars(rig: str) -> tuple[str, ...]:
-    """The variables measured on a rig's drives: the flat city's 8 (dy, dz undetermined there), or all 10."""
-    return VARS if rig == DRIVE else VARS10
+def rig_vars(rig: str, all_ten: bool = False) -> tuple[str, ...]:
+    """The variables measured on a rig's drives: the flat city's 8 (dy, dz weakly determined there;
+    with ``all_ten`` they are measured too), or all 10."""
+    return VARS if rig == DRIVE and not all_ten else VARS10
+
+
+def free_map(rig: str, measured: tuple[str, ...]) -> np.ndarray:
+    """(len(measured), p) the rig's free variables into the measured ones: the flat city's 7 of its
+    rows (:data:`A7`; dy, dz, where measured, held at the truth), the excited rig's all."""
+    if rig != DRIVE:
+        return np.eye(len(measured))
+    return np.vstack([A7, np.zeros((len(measured) - len(VARS), A7.shape[1]))])
 
 
 def reference_all_problem(seed: int, rig: str = DRIVE, filter_options: dict | None = None) -> Synthetic:
@@ -103,13 +112,16 @@ def fresh_drive(problem: Synthetic, rig: str, seed: int, i: int, sim: dict | Non
                     true_calibration=problem.sequence.truth_calibration)
 
 
-def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, filter_options: dict | None = None) -> dict:
+def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, filter_options: dict | None = None,
+            all_ten: bool = False) -> dict:
     """Per objective (D, p) gradients and (D, p, p) Hessians at the truth, per unit of
-    ``rig_vars(rig)`` (sim: SimConfig overrides of the fresh drives; rig: their preset; filter_options:
-    FilterConfig overrides over the imposed reference_all decisions)."""
+    ``rig_vars(rig, all_ten)`` (sim: SimConfig overrides of the fresh drives; rig: their preset; filter_options:
+    FilterConfig overrides over the imposed reference_all decisions). The entries of a subset of the
+    variables are those a design in that subset gives (the same calibrations, and a batch gives the
+    bits of single runs)."""
     out = {k: {"g": [], "H": []} for k in OBJECTIVES}
     skipped = 0
-    names = rig_vars(rig)
+    names = rig_vars(rig, all_ten)
     h = np.array([STEP[v] for v in names])
     for seed in seeds:
         problem = reference_all_problem(seed, rig, filter_options)
@@ -204,12 +216,13 @@ def profile(seed: int, i: int, var: str, rig: str = DRIVE, filter_options: dict 
     return lines
 
 
-def report(data: dict, rng, rig: str = DRIVE) -> list[str]:
+def report(data: dict, rng, rig: str = DRIVE, measured: tuple[str, ...] | None = None) -> list[str]:
     """The table's lines: per objective the equality in the rig's free variables (flat city: the 7
     of its rows; full3d: all 10) over all drives and over the typical ones (:func:`typical`), with
-    the per-variable ratios G_ii / H_ii there, and the mean-gradient t-statistics (all drives)."""
-    measured = rig_vars(rig)
-    A = A7 if rig == DRIVE else np.eye(len(measured))
+    the per-variable ratios G_ii / H_ii there, and the mean-gradient t-statistics (all drives;
+    measured: the variables of the data, ``rig_vars(rig)`` by default)."""
+    measured = measured or rig_vars(rig)
+    A = free_map(rig, measured)
     names = ("f",) + VARS[2:] if rig == DRIVE else measured
     p = A.shape[1]
     lines = [f"| objective | drives | tr(H⁻¹G)/{p} [95 % bootstrap] | largest eigenvalue | typical drives: tr(H⁻¹G)/{p} "
@@ -244,6 +257,9 @@ def main(argv=None) -> None:
                         help='FilterConfig overrides as JSON, e.g. \'{"jacobian_pixels": "corrected"}\'')
     parser.add_argument("--rig", default=DRIVE, choices=[DRIVE, "full3d_540m"],
                         help="the drives' preset: the flat city (8 variables measured, 7 free) or the excited rig (all 10)")
+    parser.add_argument("--all-ten", action="store_true",
+                        help="on the flat city, measure dy and dz too (the 7 free variables' figures are unchanged; "
+                             "studies/identifiability/cramer_rao.py --frozen needs them)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
@@ -264,14 +280,16 @@ def main(argv=None) -> None:
         data["skipped"] = int(saved["skipped"])
         args.rig = str(saved["rig"]) if "rig" in saved else DRIVE  # files saved before --rig: the flat city
         args.filter = json.loads(str(saved["filter"])) if "filter" in saved else None
+        measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else rig_vars(args.rig)
     else:
-        data = measure(args.seeds, args.drives, args.sim, args.rig, args.filter)
+        data = measure(args.seeds, args.drives, args.sim, args.rig, args.filter, args.all_ten)
+        measured = rig_vars(args.rig, args.all_ten)
     if args.save:
-        np.savez(args.save, skipped=data["skipped"], rig=args.rig, filter=json.dumps(args.filter or {}), vars=np.array(rig_vars(args.rig)),
+        np.savez(args.save, skipped=data["skipped"], rig=args.rig, filter=json.dumps(args.filter or {}), vars=np.array(measured),
                  **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
     print(f"{args.rig}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
           f"imposed decisions (reference_all), {time.process_time() - start:.0f} s CPU")
-    print("\n".join(report(data, np.random.default_rng(0), args.rig)))
+    print("\n".join(report(data, np.random.default_rng(0), args.rig, measured)))
 
 
 if __name__ == "__main__":

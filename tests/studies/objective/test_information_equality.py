@@ -75,3 +75,13 @@ def test_the_corrected_pixels_likelihood_stays_smooth_where_the_uncapped_step_br
     lines = module.profile(2, 1, "cy", filter_options={"jacobian_pixels": "corrected"}, n=3, worst=1)
     total = [float(v) for v in lines[1].removeprefix("total: ").split(", ")]
     assert max(abs(v) for v in total) < 20.0
+
+
+def test_the_flat_citys_seven_free_variables_hold_dy_dz_at_the_truth_when_they_are_measured_too(load_script):
+    module = load_script("information_equality")
+    eight = module.free_map(module.DRIVE, module.rig_vars(module.DRIVE))
+    ten = module.free_map(module.DRIVE, module.rig_vars(module.DRIVE, all_ten=True))
+    assert module.rig_vars(module.DRIVE, all_ten=True) == module.VARS10 and ten.shape == (10, 7)
+    np.testing.assert_array_equal(ten[:8], eight)  # the 7 free variables' rows unchanged
+    np.testing.assert_array_equal(ten[8:], 0.0)  # dy, dz held at the truth
+    np.testing.assert_array_equal(module.free_map("full3d_540m", module.VARS10), np.eye(10))
