@@ -71,6 +71,8 @@ def load(folder: Path) -> pd.DataFrame:
                      "decisions": decisions(record),
                      # where each feature's Jacobian is taken (FilterConfig.jacobian_pixels; issue 33)
                      "jacobian": (params.get("filter") or {}).get("jacobian_pixels", "measured"),
+                     # the filter's pixel noise when set apart from the default (FilterConfig.pixel_sigma_px), px
+                     "filter_sigma_px": (params.get("filter") or {}).get("pixel_sigma_px"),
                      "data_seed": params["data_seed"], "params": params, "best_x": record["best_x"],
                      "evals": record["n_evals"], "best_f": record["best_f"], "f_truth": record["f_truth"],
                      **{k: record["best_metrics"][k] for k in ERRORS}})
@@ -154,7 +156,7 @@ def summarise(runs: pd.DataFrame, bound=lambda row: None) -> pd.DataFrame:
         first = g.iloc[0]
         row = {"objective": first.objective, "drives": first.drives, "noise_realisations": first.noise_realisations,
                "free": first.free, "evals": int(g.evals.median()), "seeds": len(g), "decisions": first.decisions,
-               "jacobian": first.get("jacobian", "measured"),
+               "jacobian": first.get("jacobian", "measured"), "filter_sigma_px": first.get("filter_sigma_px"),
                "rig": first.get("rig", "paper_540m")}  # the drive preset (full3d_540m: the excited rig)
         for k in ERRORS + ("ray_error_deg",):
             row[k] = g[k].median()
@@ -194,9 +196,12 @@ def ordered(summary: pd.DataFrame) -> pd.DataFrame:
     first), budget, seeds and outlier decisions (the filters' own first): the order of the table and the figure."""
     rank = [OBJECTIVE_ORDER.index(o) if o in OBJECTIVE_ORDER else len(OBJECTIVE_ORDER) for o in summary.objective]
     jacobian = summary.get("jacobian", pd.Series("measured", index=summary.index))
+    sigma = summary.get("filter_sigma_px", pd.Series(None, index=summary.index, dtype=float))
     keys = summary.assign(_o=rank, _f=-summary.free, _d=summary.decisions != "own",
-                          _j=[JACOBIAN_ORDER.index(j) if j in JACOBIAN_ORDER else len(JACOBIAN_ORDER) for j in jacobian])
-    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d", "_j"], kind="stable")
+                          _j=[JACOBIAN_ORDER.index(j) if j in JACOBIAN_ORDER else len(JACOBIAN_ORDER) for j in jacobian],
+                          _s=pd.to_numeric(sigma).fillna(0.0))  # the default pixel noise first
+    keys = keys.sort_values(["_o", "drives", "noise_realisations", "_f", "evals", "seeds", "_d", "_j", "_s"],
+                            kind="stable")
     return summary.loc[keys.index].reset_index(drop=True)
 
 
@@ -211,13 +216,19 @@ def markdown(summary: pd.DataFrame) -> str:
         rig = getattr(r, "rig", "paper_540m")
         drives += f" {rig}" if rig != "paper_540m" else ""
         objective = r.objective + (f" ({r.decisions} decisions)" if r.decisions != "own" else "")
-        objective += JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[0]
+        objective += JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[0] + _sigma_label(r)
         lines.append(f"| {objective} | {drives} | {r.free} | {r.evals} | {r.seeds} | {r.rotation_error_deg:.2f} | "
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
                      f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} | "
                      f"{_efficiencies(r)} |")
     return "\n".join(lines) + "\n"
+
+
+def _sigma_label(r) -> str:
+    """', filter σ 1.0 px' for a row whose filter assumes another pixel noise than the default."""
+    sigma = getattr(r, "filter_sigma_px", None)
+    return "" if sigma is None or pd.isna(sigma) else f", filter σ {float(sigma):g} px"
 
 
 def _efficiencies(r) -> str:
@@ -241,7 +252,7 @@ def figure(summary: pd.DataFrame, path: Path) -> None:
     labels = [f"{r.drives}{f'x{r.noise_realisations}n' if r.noise_realisations > 1 else ''} dr, {r.free} free"
               + (f", {r.evals} ev" if budgets else "") + (f", {r.seeds} seeds" if r.seeds != usual else "")
               + (f", {r.decisions} dec" if r.decisions != "own" else "")
-              + JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[1]
+              + JACOBIAN_LABELS.get(getattr(r, "jacobian", "measured"), ("", ""))[1] + _sigma_label(r).replace("filter ", "")
               for r in summary.itertuples()]
     fig = Figure(figsize=(15, 4.2))
     titles = ("rotation error (deg)", "focal error (px)", "principal point error (px)", "lever-arm error (cm)",

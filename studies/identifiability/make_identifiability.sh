@@ -88,6 +88,9 @@ all+=(innovation_nll_joint_sixteendrive_7free_refall_1600evals_20seeds
 # undecided lead at twenty seeds (p = 0.097) decided by five more?
 all+=(innovation_nll_joint_sixteendrive_7free_refall_1600evals_25seeds
       innovation_nll_joint_sixteendrive_7free_refall_corrected_1600evals_25seeds)
+# the filter assuming 1.0 px where the drives have 0.7 (suffix _sigma1p0): does a likelihood that trusts each
+# update less, so that fewer errors outlive P across updates, calibrate closer at 4 flat drives?
+all+=(innovation_nll_joint_fourdrive_7free_refall_sigma1p0_1600evals_10seeds)
 if [ $# -eq 0 ]; then rm -rf "$out"; set -- "${all[@]}"; fi
 mkdir -p "$out"
 for name in "$@"; do
@@ -101,6 +104,10 @@ for name in "$@"; do
   jac=""; [[ $base == *_corrected ]] && { jac=", jacobian_pixels: corrected"; base=${base%_corrected}; }
   # suffix _correctedjac: the Jacobian alone there, the noise model at the measured pixels (Eq. 35c)
   [[ $base == *_correctedjac ]] && { jac=", jacobian_pixels: corrected_jacobian"; base=${base%_correctedjac}; }
+  # suffix _sigma<a>p<b>: the filter assumes a pixel noise of a.b px (FilterConfig.pixel_sigma_px; the drives' is 0.7)
+  if [[ $base =~ _sigma([0-9]+)p([0-9]+)$ ]]; then
+    jac="$jac, pixel_sigma_px: ${BASH_REMATCH[1]}.${BASH_REMATCH[2]}"; base=${base%_sigma*}
+  fi
   decisions=("problem.params.filter={outlier_decisions: own$jac}"); [[ $base == *_refdecisions ]] && { decisions=("problem.params.filter={outlier_decisions: reference$jac}"); base=${base%_refdecisions}; }
   [[ $base == *_refall ]] && { decisions=("problem.params.filter={outlier_decisions: reference_all$jac}"); base=${base%_refall}; }
   preset=paper_540m; timing=()

@@ -190,3 +190,12 @@ def test_each_rows_efficiency_is_its_bound_over_its_median_error(load_script):
     assert row.efficiency_principal_point_error_px == 2.0 and pd.isna(row.efficiency_translation_error_cm)
     assert row.bound_information == "opg"
     assert module.markdown(summary).splitlines()[2].endswith("| 0.50 / 0.25 / 2.00 / — (OPG) |")
+
+
+def test_a_filter_assuming_another_pixel_noise_is_its_own_row_after_the_default_and_says_so(load_script):
+    module = load_script("identifiability")
+    kw = dict(best_f=[1.0] * 2, f_truth=[2.0] * 2, holdout=[1.0] * 2, holdout_truth=[1.0] * 2)
+    runs = pd.concat([_runs(module, "sigma", **kw).assign(filter_sigma_px=1.0),
+                      _runs(module, "default", **kw).assign(filter_sigma_px=None)], ignore_index=True)
+    rows = module.markdown(module.summarise(runs)).splitlines()
+    assert rows[2].startswith("| innovation_nll | 4 |") and rows[3].startswith("| innovation_nll, filter σ 1 px | 4 |")
