@@ -19,6 +19,12 @@ studies/identifiability/minimiser_scatter.py predicts something else: where one 
 minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far above this bound.
 
     python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4] [--typical]
+    python studies/identifiability/cramer_rao.py --load IE10.npz --frozen dy dz
+
+``--frozen`` says instead how far variables held at the reference, as the study's configurations hold
+them, move the likelihood's limit (:func:`frozen_errors`; IE10.npz: ``information_equality.py
+--all-ten``, dy and dz measured on the flat city too). The study's summary gives every configuration's
+bound and efficiency (:func:`configuration_bound`).
 """
 
 from __future__ import annotations
@@ -143,8 +149,12 @@ def frozen_errors(saved, fixed, tie_focal: bool, seeds) -> list[dict[str, float]
     from bench.problems.synthetic import Synthetic
 
     rig, measured = saved_rig(saved)
-    A, _ = configuration_map(measured, fixed, tie_focal)
+    mapped = configuration_map(measured, fixed, tie_focal)
     held = [v for v in fixed if v in measured]
+    if mapped is None or len(held) < len(fixed):
+        raise ValueError(f"the file measured {', '.join(measured)}: every free and every held variable must be among "
+                         "them (information_equality.py --all-ten measures dy, dz on the flat city)")
+    A, _ = mapped
     B = np.zeros((len(measured), len(held)))
     for j, v in enumerate(held):
         B[measured.index(v), j] = 1.0
@@ -157,9 +167,6 @@ def frozen_errors(saved, fixed, tie_focal: bool, seeds) -> list[dict[str, float]
         delta = np.array([x_ref[names.index(v)] - problem.truth[names.index(v)] for v in held])
         X = problem.truth.copy()
         X[[names.index(v) for v in measured]] += A @ frozen_shift(info, A, B, delta) + B @ delta
-        for v in fixed:  # a frozen variable the file did not measure: held at the reference as well
-            if v not in held:
-                X[names.index(v)] = x_ref[names.index(v)]
         errs = calibration_errors(problem.calibration_space.decode(X[None]), problem.sequence.truth_calibration)
         out.append({**{k: float(errs[k][0]) for k in ERRORS}, **{f"offset_{v}": float(d) for v, d in zip(held, delta)}})
     return out
@@ -235,13 +242,13 @@ def print_frozen(saved, fixed: tuple[str, ...], seeds) -> None:
     """The table of :func:`frozen_errors`: per camera and the median."""
     from objective_bias import DRIVE
 
-    rig, measured = saved_rig(saved)
+    rig, _ = saved_rig(saved)
     tie = rig == DRIVE
-    missing = [v for v in ("dy", "dz") if v in fixed and v not in measured]
-    if missing:
-        raise SystemExit(f"cramer_rao --frozen: the file did not measure {', '.join(missing)} "
-                         "(information_equality.py --all-ten)")
-    rows = frozen_errors(saved, fixed, tie, seeds)
+    try:
+        rows = frozen_errors(saved, fixed, tie, seeds)
+    except ValueError as err:
+        print(f"cramer_rao --frozen {' '.join(fixed)}: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
     print(f"The joint likelihood's first-order limit (any number of drives) on {rig} with {', '.join(fixed)} "
           f"held at the reference{' and fy tied to fx' if tie else ''}: the reported errors there")
     offsets = [k for k in rows[0] if k.startswith("offset_")]
