@@ -20,11 +20,13 @@ minimiser falls (an M-estimator sandwich ``H^-1 G H^-1``), which may be far abov
 
     python studies/identifiability/cramer_rao.py --load IE.npz [--K 1 4 16] [--seeds 0 1 2 3 4] [--typical]
     python studies/identifiability/cramer_rao.py --load IE10.npz --frozen dy dz
+    python studies/identifiability/cramer_rao.py --load IE.npz --sets 400 [--K 1 4 16]
 
 ``--frozen`` says instead how far variables held at the reference, as the study's configurations hold
 them, move the likelihood's limit (:func:`frozen_errors`; IE10.npz: ``information_equality.py
 --all-ten``, dy and dz measured on the flat city too). The study's summary gives every configuration's
-bound and efficiency (:func:`configuration_bound`).
+bound and efficiency (:func:`configuration_bound`). ``--sets`` checks the mean Hessian's bound against
+the bound of random K-drive sets, each from its own drives' summed curvature (:func:`set_bounds`).
 """
 
 from __future__ import annotations
@@ -213,10 +215,15 @@ def main(argv=None) -> None:
     parser.add_argument("--frozen", nargs="+", metavar="VAR",
                         help="instead: the errors at the likelihood's limit with these variables held at the reference "
                              "(fy tied to fx on the flat city), e.g. dy dz (the 7-free rows) or cx cy dy dz (the 5-free)")
+    parser.add_argument("--sets", type=int, metavar="N",
+                        help="instead: the bound of N random K-drive sets of the file's drives, each from its own summed "
+                             "Hessian (set_bounds)")
     args = parser.parse_args(argv)
     saved = np.load(args.load)
     if args.frozen:
         return print_frozen(saved, tuple(args.frozen), args.seeds)
+    if args.sets:
+        return print_sets(saved, args.K, args.sets, args.seeds, np.random.default_rng(0))
     H, g = saved["innovation_nll_joint_H"], saved["innovation_nll_joint_g"]
     keep = typical(H) if args.typical else np.ones(len(H), bool)
     info = fisher_information(H[keep]) if args.information == "hessian" else outer_product_information(g[keep])
@@ -236,6 +243,48 @@ def main(argv=None) -> None:
         errs = median_error_bounds(cov, A, measured, rig, args.seeds, rng)
         print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
               + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
+
+
+def set_bounds(hessians: np.ndarray, A: np.ndarray, K: int, n_sets: int, rng) -> tuple[np.ndarray, int]:
+    """The bound drive set by drive set: for ``n_sets`` sets of K of the drives (without replacement),
+    ``(A^T (sum of the set's Hessians) A)^-1``, the set's own observed information inverted. Returns
+    the covariances (m, r, r) of the m sets whose information is positive definite, and m. The mean
+    Hessian's bound ``(K A^T E[H] A)^-1`` is below the mean of these (Jensen), and a set whose summed
+    curvature is indefinite at the truth has no quadratic minimum there at all."""
+    HA = np.einsum("ia,dij,jb->dab", A, 0.5 * (hessians + hessians.transpose(0, 2, 1)), A)
+    covs = []
+    for _ in range(n_sets):
+        info = HA[rng.choice(len(HA), K, replace=False)].sum(axis=0)
+        if np.linalg.eigvalsh(info)[0] > 0:
+            covs.append(np.linalg.inv(info))
+    return np.array(covs).reshape(-1, A.shape[1], A.shape[1]), len(covs)
+
+
+def print_sets(saved, Ks, n_sets: int, seeds, rng) -> None:
+    """Per K: the share of K-drive sets with a positive definite summed curvature and the median over
+    up to 60 of them of each set's error bounds (cameras ``seeds``), beside the mean Hessian's bound."""
+    from information_equality import free_map
+
+    rig, measured = saved_rig(saved)
+    A = free_map(rig, measured)
+    H = saved["innovation_nll_joint_H"]
+    print(f"{rig}, {len(H)} drives: each K-drive set's own observed information (the sum of its drives' Hessians at "
+          f"the truth), {n_sets} sets per K")
+    print("| K | positive definite sets | " + " | ".join(f"median set bound: {k}" for k in ERRORS) + " | "
+          + " | ".join(f"mean-Hessian bound: {k}" for k in ERRORS) + " |")
+    print("|---|---|" + "---|" * (2 * len(ERRORS)))
+    for K in Ks:
+        covs, m = set_bounds(H, A, K, n_sets, rng)
+        per = {k: [] for k in ERRORS}
+        for cov in covs[rng.choice(m, min(60, m), replace=False)] if m else []:
+            for k, v in median_error_bounds(cov, A, measured, rig, seeds, rng).items():
+                per[k].append(v)
+        try:
+            mean = median_error_bounds(bound_covariance(fisher_information(H), K, A), A, measured, rig, seeds, rng)
+        except np.linalg.LinAlgError:  # the mean Hessian is indefinite (the excited rig's): no such bound
+            mean = {}
+        print(f"| {K} | {m}/{n_sets} | " + " | ".join(f"{np.median(per[k]):.3g}" if per[k] else "—" for k in ERRORS)
+              + " | " + " | ".join(f"{mean[k]:.3g}" if k in mean else "—" for k in ERRORS) + " |")
 
 
 def print_frozen(saved, fixed: tuple[str, ...], seeds) -> None:

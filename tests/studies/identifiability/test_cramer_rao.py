@@ -133,3 +133,12 @@ def test_a_variable_held_off_the_truth_shifts_the_minimum_of_the_correlated_free
     np.testing.assert_allclose(y, minimize(quadratic, np.zeros(3), tol=1e-12).x, atol=1e-6)
     # an uncorrelated held variable moves nothing
     np.testing.assert_allclose(module.frozen_shift(np.diag([1.0, 2.0, 3.0, 4.0]), A, B, delta), 0.0)
+
+
+def test_each_sets_bound_is_its_summed_curvature_inverted_and_an_indefinite_set_has_none(load_script):
+    module = load_script("cramer_rao")
+    H = np.array([np.diag([1.0, 2.0]), np.diag([3.0, 4.0]), np.diag([-10.0, 1.0])])  # the third: negative curvature
+    covs, m = module.set_bounds(H, np.eye(2), 2, 200, np.random.default_rng(0))
+    assert 0 < m < 200  # every set holding the third drive is indefinite along the first variable
+    np.testing.assert_allclose(covs[0], np.diag([1 / 4.0, 1 / 6.0]))  # only {1, 2} is positive definite
+    assert np.allclose(covs, covs[0])
