@@ -245,13 +245,20 @@ def main(argv=None) -> None:
               + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
 
 
-def set_bounds(hessians: np.ndarray, A: np.ndarray, K: int, n_sets: int, rng) -> tuple[np.ndarray, int]:
+def set_bounds(hessians: np.ndarray, A: np.ndarray, K: int, n_sets: int, rng,
+               trajectory: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """The bound drive set by drive set: for ``n_sets`` sets of K of the drives (without replacement),
     ``(A^T (sum of the set's Hessians) A)^-1``, the set's own observed information inverted. Returns
     the covariances (m, r, r) of the m sets whose information is positive definite, and m. The mean
     Hessian's bound ``(K A^T E[H] A)^-1`` is below the mean of these (Jensen), and a set whose summed
-    curvature is indefinite at the truth has no quadratic minimum there at all."""
-    HA = np.einsum("ia,dij,jb->dab", A, 0.5 * (hessians + hessians.transpose(0, 2, 1)), A)
+    curvature is indefinite at the truth has no quadratic minimum there at all. With ``trajectory``
+    (the trajectory of each entry: several noise realisations of one drive) a drive's Hessian is the
+    mean over its realisations, its Fisher information given the trajectory with less of the
+    observed information's noise."""
+    H = 0.5 * (hessians + hessians.transpose(0, 2, 1))
+    if trajectory is not None:
+        H = np.array([H[trajectory == t].mean(axis=0) for t in np.unique(trajectory)])
+    HA = np.einsum("ia,dij,jb->dab", A, H, A)
     covs = []
     for _ in range(n_sets):
         info = HA[rng.choice(len(HA), K, replace=False)].sum(axis=0)
@@ -268,13 +275,16 @@ def print_sets(saved, Ks, n_sets: int, seeds, rng) -> None:
     rig, measured = saved_rig(saved)
     A = free_map(rig, measured)
     H = saved["innovation_nll_joint_H"]
-    print(f"{rig}, {len(H)} drives: each K-drive set's own observed information (the sum of its drives' Hessians at "
-          f"the truth), {n_sets} sets per K")
+    trajectory = saved["trajectory"] if "trajectory" in saved else None
+    per_drive = "" if trajectory is None else (f" ({len(np.unique(trajectory))} trajectories, each Hessian the mean over "
+                                               "its noise realisations)")
+    print(f"{rig}, {len(H)} drives{per_drive}: each K-drive set's own observed information (the sum of its drives' "
+          f"Hessians at the truth), {n_sets} sets per K")
     print("| K | positive definite sets | " + " | ".join(f"median set bound: {k}" for k in ERRORS) + " | "
           + " | ".join(f"mean-Hessian bound: {k}" for k in ERRORS) + " |")
     print("|---|---|" + "---|" * (2 * len(ERRORS)))
     for K in Ks:
-        covs, m = set_bounds(H, A, K, n_sets, rng)
+        covs, m = set_bounds(H, A, K, n_sets, rng, trajectory)
         per = {k: [] for k in ERRORS}
         for cov in covs[rng.choice(m, min(60, m), replace=False)] if m else []:
             for k, v in median_error_bounds(cov, A, measured, rig, seeds, rng).items():

@@ -23,7 +23,7 @@ the per-residual objective times its calibration-free slot count). Reported per 
   the median or negative, and swing the mean Hessian's weak directions), with the per-variable
   ratios ``G_ii / H_ii`` (1 where the equality holds).
 
-    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--all-ten] [--save F.npz] [--load F.npz]
+    python studies/objective/information_equality.py [--seeds 0 1 2 3 4] [--drives 10] [--sim JSON] [--filter JSON] [--all-ten] [--noise-draws R] [--save F.npz] [--load F.npz]
     python studies/objective/information_equality.py --profile SEED DRIVE VAR [--filter JSON]
 
 ``--profile`` follows one drive (camera SEED, fresh drive DRIVE) along one variable, from -1 to
@@ -55,7 +55,7 @@ from objective_bias import DRIVE, FRESH_SEED0
 from avio.filter.batch import set_threads
 from avio.objectives import innovation_nll, innovation_nll_joint, scored_frames, unused_feature_nll
 from avio.sim.simulator import SimConfig, simulate
-from bench.problems.synthetic import Synthetic
+from bench.problems.synthetic import NOISE_WORD, Synthetic
 
 VARS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx")
 #: the excited rig (``--rig full3d_540m``): every variable, all ten free (issue 33)
@@ -106,20 +106,26 @@ def reference_all_problem(seed: int, rig: str = DRIVE, filter_options: dict | No
                      filter={"outlier_decisions": "reference_all", **(filter_options or {})})
 
 
-def fresh_drive(problem: Synthetic, rig: str, seed: int, i: int, sim: dict | None = None):
-    """Fresh drive i of camera ``seed`` (``(seed, FRESH_SEED0 + i)``; sim: SimConfig overrides)."""
+def fresh_drive(problem: Synthetic, rig: str, seed: int, i: int, sim: dict | None = None, noise_draw: int = 0):
+    """Fresh drive i of camera ``seed`` (``(seed, FRESH_SEED0 + i)``; sim: SimConfig overrides); with
+    ``noise_draw`` r > 0 the same trajectory and world with another measurement-noise realisation (as
+    bench/problems/synthetic.py's noise realisations)."""
     return simulate(getattr(SimConfig, rig)(**(sim or {})), (seed, FRESH_SEED0 + i),
-                    true_calibration=problem.sequence.truth_calibration)
+                    true_calibration=problem.sequence.truth_calibration,
+                    noise_seed=None if noise_draw == 0 else (seed, FRESH_SEED0 + i, NOISE_WORD, noise_draw))
 
 
 def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, filter_options: dict | None = None,
-            all_ten: bool = False) -> dict:
+            all_ten: bool = False, noise_draws: int = 1) -> dict:
     """Per objective (D, p) gradients and (D, p, p) Hessians at the truth, per unit of
     ``rig_vars(rig, all_ten)`` (sim: SimConfig overrides of the fresh drives; rig: their preset; filter_options:
     FilterConfig overrides over the imposed reference_all decisions). The entries of a subset of the
     variables are those a design in that subset gives (the same calibrations, and a batch gives the
-    bits of single runs)."""
+    bits of single runs). With ``noise_draws`` R > 1 each trajectory is measured under R noise
+    realisations (``out["trajectory"]`` names each entry's trajectory): the mean of its Hessians
+    estimates that trajectory's Fisher information (studies/identifiability/cramer_rao.py --sets)."""
     out = {k: {"g": [], "H": []} for k in OBJECTIVES}
+    trajectory = []
     skipped = 0
     names = rig_vars(rig, all_ten)
     h = np.array([STEP[v] for v in names])
@@ -130,18 +136,20 @@ def measure(seeds, n_drives: int, sim: dict | None = None, rig: str = DRIVE, fil
         X[:, cols] += design(len(names), h)
         batch = problem.calibration_space.decode(X)
         for i in range(n_drives):
-            drive = fresh_drive(problem, rig, seed, i, sim)
-            totals = drive_totals(problem, batch, drive)
-            if totals is None:
-                skipped += 1
-                continue
-            for k in OBJECTIVES:
-                g, H = derivatives(totals[k], h)
-                out[k]["g"].append(g)
-                out[k]["H"].append(H)
+            for r in range(noise_draws):
+                totals = drive_totals(problem, batch, fresh_drive(problem, rig, seed, i, sim, r))
+                if totals is None:
+                    skipped += 1
+                    continue
+                for k in OBJECTIVES:
+                    g, H = derivatives(totals[k], h)
+                    out[k]["g"].append(g)
+                    out[k]["H"].append(H)
+                trajectory.append(1000 * seed + i)
     for k in OBJECTIVES:
         out[k] = {q: np.array(v) for q, v in out[k].items()}
     out["skipped"] = skipped
+    out["trajectory"] = np.array(trajectory, dtype=np.int64)
     return out
 
 
@@ -260,6 +268,9 @@ def main(argv=None) -> None:
     parser.add_argument("--all-ten", action="store_true",
                         help="on the flat city, measure dy and dz too (the 7 free variables' figures are unchanged; "
                              "studies/identifiability/cramer_rao.py --frozen needs them)")
+    parser.add_argument("--noise-draws", type=int, default=1, metavar="R",
+                        help="measure each drive's trajectory under R noise realisations (for cramer_rao.py --sets: "
+                             "each trajectory's information as the mean of its Hessians)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--save", type=Path, help="write the gradients and Hessians (.npz)")
     parser.add_argument("--load", type=Path, help="report from a --save file instead of measuring")
@@ -282,10 +293,11 @@ def main(argv=None) -> None:
         args.filter = json.loads(str(saved["filter"])) if "filter" in saved else None
         measured = tuple(str(v) for v in saved["vars"]) if "vars" in saved else rig_vars(args.rig)
     else:
-        data = measure(args.seeds, args.drives, args.sim, args.rig, args.filter, args.all_ten)
+        data = measure(args.seeds, args.drives, args.sim, args.rig, args.filter, args.all_ten, args.noise_draws)
         measured = rig_vars(args.rig, args.all_ten)
     if args.save:
         np.savez(args.save, skipped=data["skipped"], rig=args.rig, filter=json.dumps(args.filter or {}), vars=np.array(measured),
+                 **({"trajectory": data["trajectory"]} if "trajectory" in data else {}),
                  **{f"{k}_{q}": data[k][q] for k in OBJECTIVES for q in "gH"})
     print(f"{args.rig}, sim {args.sim or 'default'}, filter {args.filter or 'default'}: cameras {args.seeds}, {args.drives} fresh drives each ({data['skipped']} skipped: a filter diverged), "
           f"imposed decisions (reference_all), {time.process_time() - start:.0f} s CPU")

@@ -142,3 +142,12 @@ def test_each_sets_bound_is_its_summed_curvature_inverted_and_an_indefinite_set_
     assert 0 < m < 200  # every set holding the third drive is indefinite along the first variable
     np.testing.assert_allclose(covs[0], np.diag([1 / 4.0, 1 / 6.0]))  # only {1, 2} is positive definite
     assert np.allclose(covs, covs[0])
+
+
+def test_a_drives_noise_realisations_are_averaged_into_its_information_before_sets_are_drawn(load_script):
+    module = load_script("cramer_rao")
+    # two trajectories, two noise realisations each: the first's average diag(2, 2), the second's diag(4, 4)
+    H = np.array([np.diag([3.0, 1.0]), np.diag([1.0, 3.0]), np.diag([4.0, 4.0]), np.diag([4.0, 4.0])])
+    covs, m = module.set_bounds(H, np.eye(2), 2, 20, np.random.default_rng(0), trajectory=np.array([7, 7, 9, 9]))
+    assert m == 20
+    np.testing.assert_allclose(covs, np.repeat(np.diag([1 / 6.0, 1 / 6.0])[None], 20, axis=0))
