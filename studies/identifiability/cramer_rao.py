@@ -135,43 +135,22 @@ def configuration_map(measured: tuple[str, ...], fixed=(), tie_focal: bool = Fal
     return A, free
 
 
-def frozen_shift(information: np.ndarray, A: np.ndarray, B: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """(r,) first-order shift of the likelihood's expected minimum in the free variables when the
-    variables B (p, q) maps are held off the truth by delta (q,): the minimum of the quadratic
-    ``½ (A y + B δ)ᵀ I (A y + B δ)``, ``y = -(Aᵀ I A)⁻¹ Aᵀ I B δ`` (I the curvature per drive: the
-    number of drives cancels, so it is the limit of any number of drives, a bias and not a scatter)."""
-    return -np.linalg.solve(A.T @ information @ A, A.T @ information @ B @ delta)
-
-
 def frozen_errors(saved, fixed, tie_focal: bool, seeds) -> list[dict[str, float]]:
-    """Per camera of ``seeds``: the reported errors at the joint likelihood's first-order limit
-    (:func:`frozen_shift`, mean Hessian) when ``fixed`` are held at the reference, as the study's runs
-    hold them (the local space around the reference), and the offsets (local units) they are held at."""
-    from avio.calibration import calibration_errors
-    from bench.problems.synthetic import Synthetic
+    """Per camera of ``seeds``: the reported errors at the joint likelihood's limit when ``fixed`` are held
+    at the reference, as the study's runs hold them: the minimum of the quadratic model with the mean
+    Hessian of ``saved`` (all ten variables measured) and no gradient, i.e. minimiser_scatter.predict with
+    zero scores (the shift ``-(A^T H A)^-1 A^T H (c - x_t)`` of the configuration's subspace ``A y + c``);
+    the number of drives cancels, so it is the limit of any number of drives, a bias and not a scatter."""
+    from minimiser_scatter import predict
 
     rig, measured = saved_rig(saved)
-    mapped = configuration_map(measured, fixed, tie_focal)
-    held = [v for v in fixed if v in measured]
-    if mapped is None or len(held) < len(fixed):
-        raise ValueError(f"the file measured {', '.join(measured)}: every free and every held variable must be among "
-                         "them (information_equality.py --all-ten measures dy, dz on the flat city)")
-    A, _ = mapped
-    B = np.zeros((len(measured), len(held)))
-    for j, v in enumerate(held):
-        B[measured.index(v), j] = 1.0
-    info = fisher_information(saved["innovation_nll_joint_H"])
-    out = []
-    for seed in seeds:
-        problem = Synthetic(drives=[rig], holdout=None, data_seed=seed, space="local")
-        names = problem.space.names
-        x_ref = problem.calibration_space.encode(problem.sequence.reference_calibration)[0]
-        delta = np.array([x_ref[names.index(v)] - problem.truth[names.index(v)] for v in held])
-        X = problem.truth.copy()
-        X[[names.index(v) for v in measured]] += A @ frozen_shift(info, A, B, delta) + B @ delta
-        errs = calibration_errors(problem.calibration_space.decode(X[None]), problem.sequence.truth_calibration)
-        out.append({**{k: float(errs[k][0]) for k in ERRORS}, **{f"offset_{v}": float(d) for v, d in zip(held, delta)}})
-    return out
+    if tuple(measured) != SPACE_VARIABLES:
+        raise ValueError(f"the file measured {', '.join(measured)}: --frozen needs all ten variables "
+                         "(information_equality.py --all-ten measures dy, dz on the flat city)")
+    H = saved["innovation_nll_joint_H"]
+    out = predict(np.zeros((len(H), len(measured))), H, 1, {"frozen": (tie_focal, tuple(fixed))}, seeds, 1,
+                  np.random.default_rng(0))["frozen"]
+    return [{k: float(out[k][i, 0]) for k in ERRORS} for i in range(len(seeds))]
 
 
 def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_time_offset: bool = False,
@@ -310,13 +289,11 @@ def print_frozen(saved, fixed: tuple[str, ...], seeds) -> None:
         raise SystemExit(2) from None
     print(f"The joint likelihood's first-order limit (any number of drives) on {rig} with {', '.join(fixed)} "
           f"held at the reference{' and fy tied to fx' if tie else ''}: the reported errors there")
-    offsets = [k for k in rows[0] if k.startswith("offset_")]
-    print("| camera | " + " | ".join(ERRORS) + " | " + " | ".join(offsets) + " |")
-    print("|---|" + "---|" * (len(ERRORS) + len(offsets)))
+    print("| camera | " + " | ".join(ERRORS) + " |")
+    print("|---|" + "---|" * len(ERRORS))
     for seed, row in zip(seeds, rows):
-        print(f"| {seed} | " + " | ".join(f"{row[k]:.3g}" for k in ERRORS + tuple(offsets)) + " |")
-    print("| median | " + " | ".join(f"{np.median([r[k] for r in rows]):.3g}" for k in ERRORS) + " |"
-          + " |" * len(offsets))
+        print(f"| {seed} | " + " | ".join(f"{row[k]:.3g}" for k in ERRORS) + " |")
+    print("| median | " + " | ".join(f"{np.median([r[k] for r in rows]):.3g}" for k in ERRORS) + " |")
 
 
 if __name__ == "__main__":
