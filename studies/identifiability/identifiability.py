@@ -122,27 +122,34 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def bounds_in(folder: Path):
-    """The configuration's Cramér–Rao bound (cramer_rao.configuration_bound) from the folder's
-    ``information_*.npz`` (studies/objective/information_equality.py --save, one per rig): a function
-    of a run's row (:func:`load`) giving the bound's dict or None (no file for its rig, a free variable
-    the file did not measure, or several noise realisations of one drive: not independent drives)."""
+    """The configuration's Cramér–Rao bounds: the joint likelihood's (cramer_rao.configuration_bound) from
+    the folder's ``information_*.npz`` (studies/objective/information_equality.py --save, one per rig) and,
+    under ``"data"``, the data's (data_bound.configuration_bound) from its ``data_bound_*.npz``
+    (studies/identifiability/data_bound.py --save): a function of a run's row (:func:`load`) giving the
+    bounds' dict or None (no file for its rig, a free variable a file did not measure, or several noise
+    realisations of one drive: not independent drives)."""
     sys.path[:0] = [str(ROOT / "studies" / "identifiability"), str(ROOT / "studies" / "objective")]
-    from cramer_rao import configuration_bound
+    import cramer_rao
+    import data_bound
 
-    saved = {}
-    for path in sorted(folder.glob("information_*.npz")):
-        data = dict(np.load(path))
-        saved[str(data.get("rig", "paper_540m"))] = data  # files saved before --rig: the flat city
+    saved = {"information": {}, "data_bound": {}}
+    for kind in saved:
+        for path in sorted(folder.glob(f"{kind}_*.npz")):
+            data = dict(np.load(path))
+            saved[kind][str(data.get("rig", "paper_540m"))] = data  # files saved before --rig: the flat city
     cache = {}
 
     def bound(row) -> dict | None:
         params = row["params"]
         key = (row["rig"], row["drives"], tuple(params.get("fixed") or ()), bool(params.get("tie_focal")),
                bool(params.get("with_time_offset")))
-        if row["rig"] not in saved or row["noise_realisations"] > 1:
+        if row["noise_realisations"] > 1:
             return None
         if key not in cache:
-            cache[key] = configuration_bound(saved[row["rig"]], row["drives"], key[2], key[3], key[4])
+            model, data = saved["information"].get(row["rig"]), saved["data_bound"].get(row["rig"])
+            out = (cramer_rao.configuration_bound(model, *key[1:]) if model is not None else None) or {}
+            out["data"] = data_bound.configuration_bound(data, *key[1:]) if data is not None else None
+            cache[key] = out
         return cache[key]
 
     return bound
@@ -176,10 +183,13 @@ def summarise(runs: pd.DataFrame, bound=lambda row: None) -> pd.DataFrame:
         row["best_below_truth"] = f"{int((g.best_f < g.f_truth).sum())}/{len(g)}"
         bounds = bound(first) or {}
         row["bound_information"] = bounds.get("information")
+        row["data_bound"] = bounds.get("data") is not None
         for k in ERRORS:
-            b = bounds.get(k)
+            b, d = bounds.get(k), (bounds.get("data") or {}).get(k)
             row[f"bound_{k}"] = b
             row[f"efficiency_{k}"] = b / row[k] if b is not None else None
+            row[f"data_bound_{k}"] = d
+            row[f"data_efficiency_{k}"] = d / row[k] if d is not None else None
         rows.append(row)
     return ordered(pd.DataFrame(rows))
 
@@ -210,7 +220,7 @@ def markdown(summary: pd.DataFrame) -> str:
     lines = ["| objective | drives | free | evaluations | seeds | rotation (deg) | focal (px) | principal point (px) | "
              "lever arm (cm) | ray error (deg) | held-out RMSE (m) | held-out − truth, paired (m) | held-out better "
              "than reference / than truth | best f below f(truth) | efficiency: rotation / focal / principal point / "
-             "lever arm |", "|" + "---|" * 15]
+             "lever arm | against the data's bound |", "|" + "---|" * 16]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
         rig = getattr(r, "rig", "paper_540m")
@@ -221,7 +231,7 @@ def markdown(summary: pd.DataFrame) -> str:
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
                      f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} | "
-                     f"{_efficiencies(r)} |")
+                     f"{_efficiencies(r)} | {_efficiencies(r, 'data_')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -231,14 +241,16 @@ def _sigma_label(r) -> str:
     return "" if sigma is None or pd.isna(sigma) else f", filter σ {float(sigma):g} px"
 
 
-def _efficiencies(r) -> str:
-    """The row's efficiencies, bound ÷ achieved: '—' for an error whose variables are not all free, blank
-    without a bound (OPG: the bound from the scores' outer product)."""
-    if not isinstance(getattr(r, "bound_information", None), str):
+def _efficiencies(r, which: str = "") -> str:
+    """The row's efficiencies, bound ÷ achieved (``which``: "" the joint likelihood's bound, "data_" the
+    data's): '—' for an error whose variables are not all free, blank without a bound (OPG: the bound
+    from the scores' outer product)."""
+    has = bool(getattr(r, "data_bound", False)) if which else isinstance(getattr(r, "bound_information", None), str)
+    if not has:
         return ""
-    vals = [getattr(r, f"efficiency_{k}") for k in ERRORS]
+    vals = [getattr(r, f"{which}efficiency_{k}") for k in ERRORS]
     text = " / ".join("—" if v is None or pd.isna(v) else f"{v:.2f}" for v in vals)
-    return text + (" (OPG)" if r.bound_information == "opg" else "")
+    return text + (" (OPG)" if not which and r.bound_information == "opg" else "")
 
 
 def figure(summary: pd.DataFrame, path: Path) -> None:

@@ -1,0 +1,411 @@
+"""What do a simulated drive's data allow, whatever the estimator? The Cramér–Rao bound of the
+simulator's own measurement model, solved as a batch (issue 33).
+
+cramer_rao.py bounds the calibration with the joint innovation likelihood's curvature: a bound only
+as far as the filter's model is the data's likelihood, and on the excited rig it is not (its expected
+curvature at the truth is indefinite along the lever arm). This bound takes the model that made the
+data instead (docs/model.md, Eqs. 58-61): every distinct pixel of the drive's inlier triplet features
+(Gaussian, ``pixel_noise_px`` per coordinate, one draw per frame and landmark), the 100 Hz IMU
+(white noise and bias random walks of the sequence's ImuNoise) and the filter's prior on the first
+state. The unknowns are every frame's IMU state (attitude, position, velocity, biases: 15), every
+landmark (3) and the ten calibration variables in the study's local space (px, deg, m); the points
+are projected out of their pixels' rows (:func:`points_projected_out`), the states by the Schur
+complement (Eq. 61). Any unbiased estimator from the same data and prior, the filter included, has
+at least this covariance. It knows which features are outliers (they are left out whole), so it is
+optimistic there.
+
+Which data (:class:`Pixels`): by default the drive's pixels as they are, a landmark's pixels linked
+over every triplet that holds it (the tracks). ``--triplets``: each triplet's features as points of
+their own, seen in three images with noise of their own — the measurements as the filter models them
+(independent triplets, ``SimConfig.pixel_noise_per_triplet``); ``--max-features 16`` keeps 16 of every
+triplet's inliers, as many as an update uses (``FilterConfig.max_update_features``).
+
+    python studies/identifiability/data_bound.py [--rig paper_540m] [--seeds 0 1 2 3 4] [--drives 10] [--K 1 4 16]
+        [--triplets] [--max-features 16] [--save F.npz]
+    python studies/identifiability/data_bound.py --load F.npz [--K 1 4 16]
+
+About 3 s of CPU per drive (a 78 s drive: 781 frames, ~20,000 pixels); no filter is run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "studies" / "objective"))
+sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
+
+from avio.geometry import so3_exp, so3_log
+
+#: the local space's variables, the order of the information's rows (cramer_rao.SPACE_VARIABLES)
+VARS10 = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
+#: central-difference steps of the calibration's local variables (px, deg, m): the model is smooth
+CAL_STEP = np.array([1e-3] * 4 + [1e-4] * 3 + [1e-5] * 3)
+STATE = 15  # per frame: attitude (rad, body), position (m), velocity (m/s), accel bias, gyro bias
+
+
+def project(R_world_imu, p_world_imu, X_world, fx, fy, cx, cy, R_cam_imu, p_imu_cam) -> np.ndarray:
+    """(n, 2) pixels of world points X_world (n, 3) seen from IMU poses (n, 3, 3), (n, 3) through a
+    camera (fx..cy (n,) px, R_cam_imu (n, 3, 3), p_imu_cam (n, 3) m) (docs/model.md, Eqs. 5, 20)."""
+    R_world_cam = R_world_imu @ np.swapaxes(R_cam_imu, -1, -2)
+    p_world_cam = p_world_imu + np.einsum("nij,nj->ni", R_world_imu, p_imu_cam)
+    x = np.einsum("nji,nj->ni", R_world_cam, X_world - p_world_cam)
+    return np.stack([fx * x[:, 0] / x[:, 2] + cx, fy * x[:, 1] / x[:, 2] + cy], axis=1)
+
+
+def _rotate(R: np.ndarray, axis: int, h: float) -> np.ndarray:
+    """R exp(h e_axis): a body-frame (right) perturbation of rotations (n, 3, 3)."""
+    e = np.zeros(3)
+    e[axis] = h
+    return R @ so3_exp(e)
+
+
+def reprojection_jacobians(R, p, X, cal_plus, cal_minus) -> dict[str, np.ndarray]:
+    """Central-difference Jacobians of :func:`project` at the truth, per observation: ``theta``,
+    ``p``, ``X`` (n, 2, 3) and ``cal`` (n, 2, 10) (cal_plus/cal_minus: the 10 calibrations one step up
+    and down each local variable, as Calibration batches of 10)."""
+    def cam(c, j):
+        n = len(R)
+        return (np.full(n, c.fx_px[j]), np.full(n, c.fy_px[j]), np.full(n, c.cx_px[j]), np.full(n, c.cy_px[j]),
+                np.broadcast_to(c.R_cam_imu[j], (n, 3, 3)), np.broadcast_to(c.p_imu_cam_m[j], (n, 3)))
+
+    mid = cam(cal_plus, 0)  # any camera near the truth: pose and point derivatives change by O(step)
+    out = {k: np.zeros((len(R), 2, 3)) for k in ("theta", "p", "X")}
+    for a in range(3):
+        hr, hp = 1e-6, 1e-5
+        up, down = project(_rotate(R, a, hr), p, X, *mid), project(_rotate(R, a, -hr), p, X, *mid)
+        out["theta"][:, :, a] = (up - down) / (2 * hr)
+        e = np.zeros(3)
+        e[a] = hp
+        out["p"][:, :, a] = (project(R, p + e, X, *mid) - project(R, p - e, X, *mid)) / (2 * hp)
+        out["X"][:, :, a] = (project(R, p, X + e, *mid) - project(R, p, X - e, *mid)) / (2 * hp)
+    out["cal"] = np.stack([(project(R, p, X, *cam(cal_plus, j)) - project(R, p, X, *cam(cal_minus, j)))
+                           / (2 * CAL_STEP[j]) for j in range(10)], axis=2)
+    return out
+
+
+def points_projected_out(block: np.ndarray, col_index: np.ndarray, point: np.ndarray):
+    """Each point's pixels with the point eliminated: the rows ``N^T J`` of its 2m whitened residuals, N the
+    left null space of their point Jacobian (complete QR), which carry the same information on everything
+    else as the Schur complement of the point's 3x3 block without inverting it (a point seen over a short
+    baseline makes that block nearly singular). block (n, 2, 19): per pixel, columns attitude, position
+    (6), point (3), calibration (10); col_index (n, 19); point (n,) its point. Yields (rows (n_m, 2m - 3,
+    6m + 10), columns (n_m, 6m + 10)) for the points of each observation count m."""
+    order = np.argsort(point, kind="stable")
+    _, start, count = np.unique(point[order], return_index=True, return_counts=True)
+    for m in np.unique(count):
+        obs = order[start[count == m][:, None] + np.arange(m)]  # (n_m, m) pixels of each point
+        b = block[obs]  # (n_m, m, 2, 19)
+        n_m = len(obs)
+        J_point = b[..., 6:9].reshape(n_m, 2 * m, 3)
+        J_rest = np.zeros((n_m, 2 * m, 6 * m + 10))
+        for i in range(m):  # a pixel depends on its own frame's pose alone
+            J_rest[:, 2 * i:2 * i + 2, 6 * i:6 * i + 6] = b[:, i, :, :6]
+        J_rest[:, :, 6 * m:] = b[..., 9:].reshape(n_m, 2 * m, 10)
+        null = np.linalg.qr(J_point, mode="complete")[0][:, :, 3:]
+        cols = np.concatenate([col_index[obs][..., :6].reshape(n_m, 6 * m), col_index[obs[:, 0]][:, 9:]], axis=1)
+        yield np.swapaxes(null, 1, 2) @ J_rest, cols
+
+
+def preintegrate(gyro: np.ndarray, accel: np.ndarray, bg: np.ndarray, ba: np.ndarray, dt: float):
+    """Euler preintegration of each interval's samples (n, s, 3) with biases (n, 3) (Eq. 59):
+    (dR (n, 3, 3), dv (n, 3), dp (n, 3)) in the interval's first IMU frame."""
+    n, s, _ = gyro.shape
+    dR = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    dv, dp = np.zeros((n, 3)), np.zeros((n, 3))
+    for i in range(s):
+        acc = np.einsum("nij,nj->ni", dR, accel[:, i] - ba)
+        dp += dv * dt + 0.5 * acc * dt * dt
+        dv += acc * dt
+        dR = dR @ so3_exp((gyro[:, i] - bg) * dt)
+    return dR, dv, dp
+
+
+def imu_residual(truth, x0: np.ndarray, x1: np.ndarray, gyro, accel, dt: float, gravity: np.ndarray) -> np.ndarray:
+    """(n, 9) residual of the IMU between consecutive frames (Eq. 60): states x0 (n, 15) and x1 (n, 9)
+    as perturbations ``[theta, p, v, b_a, b_g]`` of the truth (R0, p0, v0, b_a0, b_g0, R1, p1, v1: each
+    interval's first frame and its last, (n, ...)); gyro, accel (n, s, 3) the interval's samples."""
+    R0, p0, v0, ba0, bg0, R1, p1, v1 = truth
+    Ra = R0 @ so3_exp(x0[:, 0:3])
+    Rb = R1 @ so3_exp(x1[:, 0:3])
+    pa, va, pb, vb = p0 + x0[:, 3:6], v0 + x0[:, 6:9], p1 + x1[:, 3:6], v1 + x1[:, 6:9]
+    dR, dv, dp = preintegrate(gyro, accel, bg0 + x0[:, 12:15], ba0 + x0[:, 9:12], dt)
+    T = dt * gyro.shape[1]
+    RaT = np.swapaxes(Ra, -1, -2)
+    r_R = so3_log(np.swapaxes(dR, -1, -2) @ RaT @ Rb)
+    r_v = np.einsum("nij,nj->ni", RaT, vb - va - gravity * T) - dv
+    r_p = np.einsum("nij,nj->ni", RaT, pb - pa - va * T - 0.5 * gravity * T * T) - dp
+    return np.concatenate([r_R, r_v, r_p], axis=1)
+
+
+def imu_factors(truth, gyro, accel, dt: float, gravity: np.ndarray, accel_sigma: float, gyro_sigma: float):
+    """Whitened Jacobians (n, 9, 24) of the IMU residual in the states ``[x_k (15), x_{k+1} (theta, p, v)]``
+    of each interval (n intervals of s samples; per-sample noise sigmas), by central differences; the
+    residual's covariance is the samples' noise carried through the preintegration (Eq. 61)."""
+    n = len(gyro)
+    z0, z1 = np.zeros((n, 15)), np.zeros((n, 9))
+    J = np.zeros((n, 9, 24))
+    steps = np.r_[[1e-6] * 3, [1e-5] * 3, [1e-5] * 3, [1e-5] * 3, [1e-7] * 3]
+    for j in range(24):
+        h = steps[j] if j < 15 else steps[j - 15]
+        a0, a1 = z0.copy(), z1.copy()
+        b0, b1 = z0.copy(), z1.copy()
+        (a0 if j < 15 else a1)[:, j if j < 15 else j - 15] = h
+        (b0 if j < 15 else b1)[:, j if j < 15 else j - 15] = -h
+        up = imu_residual(truth, a0, a1, gyro, accel, dt, gravity)
+        down = imu_residual(truth, b0, b1, gyro, accel, dt, gravity)
+        J[:, :, j] = (up - down) / (2 * h)
+    # the residual's covariance: derivatives in each sample's noise, times its variance
+    s = gyro.shape[1]
+    cov = np.zeros((n, 9, 9))
+    for which, sigma, h in ((gyro, gyro_sigma, 1e-7), (accel, accel_sigma, 1e-5)):
+        for i in range(s):
+            for a in range(3):
+                up, down = which.copy(), which.copy()
+                up[:, i, a] += h
+                down[:, i, a] -= h
+                args_up = (up, accel) if which is gyro else (gyro, up)
+                args_down = (down, accel) if which is gyro else (gyro, down)
+                d = (imu_residual(truth, z0, z1, *args_up, dt, gravity)
+                     - imu_residual(truth, z0, z1, *args_down, dt, gravity)) / (2 * h)
+                cov += sigma**2 * d[:, :, None] * d[:, None, :]
+    L = np.linalg.cholesky(cov)
+    return np.linalg.solve(L, J)
+
+
+class Pixels(NamedTuple):  # a NamedTuple: the tests load this script by path, outside sys.modules
+    """Which pixels the bound counts. max_features: keep this many of every triplet's inlier features
+    (at random; None: all). triplets: every triplet feature its own unknown point and its three pixels
+    its own (the data of ``SimConfig.pixel_noise_per_triplet``: the triplets' measurements as the filter
+    models them, independent, and no track linking them); default: the drive's distinct pixels, one
+    unknown point per landmark."""
+
+    max_features: int | None = None
+    triplets: bool = False
+
+
+def drive_observations(seq, world, pixels: Pixels = Pixels(), rng=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The drive's inlier pixels: (frame (m,), landmark (m,) row of ``world.landmarks_world``, point (m,):
+    the unknown point each belongs to), from the simulator's own tracks (the triplets re-drawn with the
+    sequence's tracks stream, checked equal to the sequence's); rng draws ``pixels.max_features``."""
+    from avio.sim.camera import simulate_tracks
+    from avio.sim.simulator import SimConfig, _seed_streams  # the sequence's own random streams
+
+    meta = seq.meta
+    config = SimConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()
+                          if k != "imu_noise"}, imu_noise=seq.imu_noise)
+    streams = _seed_streams(tuple(np.atleast_1d(meta["seed"])), None if "noise_seed" not in meta
+                            else tuple(np.atleast_1d(meta["noise_seed"])))
+    tracks, details = simulate_tracks(
+        world.trajectory, seq.frame_t_s, seq.truth_calibration, world.landmarks_world, config.image_size_px,
+        config.pixel_noise_px, config.outlier_fraction, config.max_features, np.random.default_rng(streams["tracks"]),
+        return_details=True, noise_per_triplet=config.pixel_noise_per_triplet)
+    if not np.array_equal(tracks.uv_px, seq.tracks.uv_px):
+        raise RuntimeError(f"{seq.name}: the re-drawn tracks differ from the sequence's")
+    keep = tracks.valid & ~details["outlier"]
+    if pixels.max_features is not None:
+        score = np.where(keep, rng.random(keep.shape), np.inf)
+        keep &= np.argsort(np.argsort(score, axis=1), axis=1) < pixels.max_features
+    t, f = np.nonzero(keep)
+    frames = np.concatenate([tracks.frame_index[t] - 2 + j for j in range(3)])
+    landmarks = np.tile(details["landmark_id"][t, f], 3)
+    if pixels.triplets:
+        return frames, landmarks, np.tile(np.arange(len(t)), 3)
+    pairs = np.unique(np.stack([frames, landmarks], axis=1), axis=0)
+    return pairs[:, 0], pairs[:, 1], np.unique(pairs[:, 1], return_inverse=True)[1]
+
+
+def drive_information(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None) -> np.ndarray:
+    """(10, 10) Fisher information of the calibration's local variables (VARS10) on one simulated drive,
+    every frame state and landmark marginalised out (module docstring; decode: the problem's local
+    space decode, x_truth its truth there)."""
+    return calibration_information(*drive_jacobian(seq, world, decode, x_truth, pixels, rng))
+
+
+def calibration_information(J, n_x: int) -> np.ndarray:
+    """(10, 10) Schur complement of ``J^T J`` onto its last 10 columns (Eq. 61; J: the whitened
+    Jacobian, sparse, its first n_x columns the unknowns marginalised out)."""
+    info = (J.T @ J).tocsc()
+    scale = 1.0 / np.sqrt(info.diagonal())  # equilibrated: the states' information spans ~12 decades
+    info = (sp.diags(scale) @ info @ sp.diags(scale)).tocsc()
+    I_xx, I_xc, I_cc = info[:n_x, :n_x], info[:n_x, n_x:].toarray(), info[n_x:, n_x:].toarray()
+    I_cal = (I_cc - I_xc.T @ splu(I_xx).solve(I_xc)) / np.outer(scale[n_x:], scale[n_x:])
+    return 0.5 * (I_cal + I_cal.T)
+
+
+def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None, points: bool = False):
+    """(J, n_x): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
+    the prior; columns: 15 per frame, then the 10 calibration variables) at the truth, and the number of
+    columns before the calibration's. The points are projected out of the pixels' rows
+    (:func:`points_projected_out`); with ``points`` they are columns instead, 3 per point after the frames'."""
+    from avio.filter.config import FilterConfig
+
+    frame_t = seq.frame_t_s
+    N = len(frame_t)
+    st = world.trajectory(frame_t)
+    at = np.searchsorted(seq.imu.t_s, frame_t - 1e-9)
+    per = int(at[1] - at[0])
+    if not np.all(np.diff(at) == per) or not np.allclose(seq.imu.t_s[at], frame_t):
+        raise ValueError(f"{seq.name}: frames must fall on IMU samples at a fixed ratio")
+    ba, bg = world.accel_bias_mps2[at], world.gyro_bias_radps[at]
+    frame, lm, lm_col = drive_observations(seq, world, pixels, rng)
+    L = int(lm_col.max()) + 1 if points else 0
+    n_x = STATE * N + 3 * L
+    rows, cols, vals = [], [], []
+    row = 0
+
+    def put(block: np.ndarray, col_index: np.ndarray) -> None:
+        """Rows (n, r, c) of the whitened Jacobian with columns (n, c)."""
+        nonlocal row
+        n, r, c = block.shape
+        rr = row + np.arange(n * r).reshape(n, r)
+        rows.append(np.repeat(rr[:, :, None], c, axis=2).ravel())
+        cols.append(np.broadcast_to(col_index[:, None, :], (n, r, c)).ravel())
+        vals.append(block.ravel())
+        row += n * r
+
+    # pixels (Eq. 58)
+    X = decode(np.repeat(x_truth[None], 20, axis=0) + np.vstack([np.diag(CAL_STEP), -np.diag(CAL_STEP)]))
+    cal_plus, cal_minus = X[:10], X[10:]
+    Jp = reprojection_jacobians(st.R_world_imu[frame], st.p_world_imu_m[frame], world.landmarks_world[lm],
+                                cal_plus, cal_minus)
+    sigma = float(seq.meta["config"]["pixel_noise_px"])
+    block = np.concatenate([Jp["theta"], Jp["p"], Jp["X"], Jp["cal"]], axis=2) / sigma
+    col_index = np.concatenate([STATE * frame[:, None] + np.arange(6), STATE * N + 3 * lm_col[:, None] + np.arange(3),
+                                np.broadcast_to(n_x + np.arange(10), (len(frame), 10))], axis=1)
+    if points:
+        put(block, col_index)
+    else:
+        for rows_m, cols_m in points_projected_out(block, col_index, lm_col):
+            put(rows_m, cols_m)
+    # IMU between consecutive frames (Eqs. 59-61)
+    dt = float(np.median(np.diff(seq.imu.t_s)))
+    idx = at[:-1, None] + np.arange(per)
+    noise = seq.imu_noise
+    truth = (st.R_world_imu[:-1], st.p_world_imu_m[:-1], st.v_world_imu_mps[:-1], ba[:-1], bg[:-1],
+             st.R_world_imu[1:], st.p_world_imu_m[1:], st.v_world_imu_mps[1:])
+    Ji = imu_factors(truth, seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], dt, seq.gravity_world_mps2,
+                     noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
+    k = np.arange(N - 1)[:, None]
+    put(Ji, np.concatenate([STATE * k + np.arange(15), STATE * (k + 1) + np.arange(9)], axis=1))
+    # bias random walks
+    T = dt * per
+    walk = np.r_[[noise.accel_bias_walk * np.sqrt(T)] * 3, [noise.gyro_bias_walk * np.sqrt(T)] * 3]
+    eye = np.eye(6) / walk
+    put(np.concatenate([np.broadcast_to(-eye, (N - 1, 6, 6)), np.broadcast_to(eye, (N - 1, 6, 6))], axis=2),
+        np.concatenate([STATE * k + 9 + np.arange(6), STATE * (k + 1) + 9 + np.arange(6)], axis=1))
+    # the filter's prior on the first state (Eq. 9)
+    c = FilterConfig()
+    prior = np.r_[[c.init_sigma_theta_rad] * 3, [c.init_sigma_p_m] * 3, [c.init_sigma_v_mps] * 3,
+                  [c.init_sigma_ba_mps2] * 3, [c.init_sigma_bg_radps] * 3]
+    put(np.diag(1 / prior)[None], np.arange(15)[None])
+    J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_x + 10))
+    return J, n_x
+
+
+
+def measure(rig: str, seeds, n_drives: int, pixels: Pixels = Pixels()) -> dict:
+    """Per fresh drive of each camera (studies/objective/information_equality.py's drives: ``(seed, 100 + i)``
+    of the rig's preset, the camera's truth) the (10, 10) information (:func:`drive_information`)."""
+    from information_equality import reference_all_problem
+    from objective_bias import FRESH_SEED0
+
+    from avio.sim.simulator import SimConfig, simulate_world
+
+    out, trajectory = [], []
+    rng = np.random.default_rng(0)
+    for seed in seeds:
+        problem = reference_all_problem(seed, rig)
+        cols = [problem.space.names.index(v) for v in VARS10]
+        if cols != list(range(10)):
+            raise ValueError(f"the local space's first ten variables are not {VARS10}")
+        for i in range(n_drives):
+            seq, world = simulate_world(getattr(SimConfig, rig)(), (seed, FRESH_SEED0 + i),
+                                        true_calibration=problem.sequence.truth_calibration)
+            decode = problem.calibration_space.decode
+            out.append(drive_information(seq, world, decode, problem.truth, pixels, rng))
+            trajectory.append(1000 * seed + i)
+    return {"information": np.array(out), "trajectory": np.array(trajectory, dtype=np.int64)}
+
+
+def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_time_offset: bool = False,
+                        seeds=(0, 1, 2, 3, 4), rng=None) -> dict | None:
+    """The data's bound on each reported error of a study configuration (as cramer_rao.configuration_bound,
+    from a ``--save`` file of this script, loaded): None with the time offset free (not modelled here);
+    an error whose variables are not all free gets None."""
+    from cramer_rao import ERROR_VARIABLES, ERRORS, bound_covariance, configuration_map, median_error_bounds
+
+    if with_time_offset:
+        return None
+    A, free = configuration_map(VARS10, fixed, tie_focal)
+    try:
+        cov = bound_covariance(saved["information"].mean(axis=0), K, A)
+    except np.linalg.LinAlgError:  # a free direction the data do not determine (the flat city's dz): no bound
+        return None
+    rng = rng if rng is not None else np.random.default_rng(0)
+    errs = median_error_bounds(cov, A, VARS10, str(saved["rig"]), seeds, rng)
+    return {k: (errs[k] if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k]) else None)
+            for k in ERRORS}
+
+
+def main(argv=None) -> None:
+    from cramer_rao import ERRORS, bound_covariance, configuration_map, median_error_bounds
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rig", default="paper_540m", choices=["paper_540m", "full3d_540m"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="cameras")
+    parser.add_argument("--drives", type=int, default=10, help="fresh drives per camera")
+    parser.add_argument("--K", type=int, nargs="+", default=[1, 4, 16], help="calibration drives")
+    parser.add_argument("--max-features", type=int, help="keep this many inlier features of every triplet")
+    parser.add_argument("--triplets", action="store_true",
+                        help="each triplet feature its own point and pixels (Pixels)")
+    parser.add_argument("--save", type=Path)
+    parser.add_argument("--load", type=Path)
+    args = parser.parse_args(argv)
+    if args.load:
+        saved = np.load(args.load)
+        rig, info = str(saved["rig"]), saved["information"]
+        pixels = Pixels(int(saved["max_features"]) or None, bool(saved["triplets"]))
+    else:
+        t0 = time.process_time()
+        pixels = Pixels(args.max_features, args.triplets)
+        data = measure(args.rig, args.seeds, args.drives, pixels)
+        rig, info = args.rig, data["information"]
+        print(f"{len(info)} drives of {rig} in {time.process_time() - t0:.0f} s CPU")
+        if args.save:
+            np.savez(args.save, rig=rig, vars=np.array(VARS10), max_features=args.max_features or 0,
+                     triplets=args.triplets, **data)
+    mean = info.mean(axis=0)
+    rng = np.random.default_rng(0)
+    configurations = {"all 10 free": ((), False), "9 free (dz at the truth)": (("dz",), False),
+                      "7 free (fy = fx, dy, dz at the truth)": (("dy", "dz"), True)}
+    for label, (fixed, tie) in configurations.items():
+        A, free = configuration_map(VARS10, fixed, tie)
+        which = ("independent triplets" if pixels.triplets else "the tracks") + (
+            f", {pixels.max_features} features a triplet" if pixels.max_features else "")
+        print(f"\nCramér–Rao bound of the data ({which}), {rig}, {label}: {len(info)} drives' mean information")
+        if np.linalg.eigvalsh(A.T @ mean @ A)[0] <= 1e-9 * np.abs(mean).max():
+            smallest = np.linalg.eigh(A.T @ mean @ A)[1][:, 0]
+            print("not identifiable: no information along "
+                  + ", ".join(f"{v} {c:+.3f}" for v, c in zip(free, smallest) if abs(c) > 1e-3))
+            continue
+        print("| K | " + " | ".join(f"σ({v})" for v in free) + " | " + " | ".join(ERRORS) + " |")
+        print("|---|" + "---|" * (len(free) + len(ERRORS)))
+        for K in args.K:
+            cov = bound_covariance(mean, K, A)
+            errs = median_error_bounds(cov, A, VARS10, rig, args.seeds, rng)
+            print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
+                  + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
+
+
+if __name__ == "__main__":
+    main()
