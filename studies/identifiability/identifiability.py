@@ -124,19 +124,23 @@ def held_out(runs: pd.DataFrame) -> pd.DataFrame:
 def bounds_in(folder: Path):
     """The configuration's Cramér–Rao bounds: the joint likelihood's (cramer_rao.configuration_bound) from
     the folder's ``information_*.npz`` (studies/objective/information_equality.py --save, one per rig) and,
-    under ``"data"``, the data's (data_bound.configuration_bound) from its ``data_bound_*.npz``
-    (studies/identifiability/data_bound.py --save): a function of a run's row (:func:`load`) giving the
-    bounds' dict or None (no file for its rig, a free variable a file did not measure, or several noise
-    realisations of one drive: not independent drives)."""
+    under ``"data"`` and ``"triplets"``, the data's (data_bound.configuration_bound: the tracks, and
+    independent triplets) from its ``data_bound_*.npz`` (studies/identifiability/data_bound.py --save, all
+    features): a function of a run's row (:func:`load`) giving the bounds' dict or None (no file for its
+    rig, a free variable a file did not measure, or several noise realisations of one drive: not
+    independent drives)."""
     sys.path[:0] = [str(ROOT / "studies" / "identifiability"), str(ROOT / "studies" / "objective")]
     import cramer_rao
     import data_bound
 
-    saved = {"information": {}, "data_bound": {}}
-    for kind in saved:
-        for path in sorted(folder.glob(f"{kind}_*.npz")):
-            data = dict(np.load(path))
-            saved[kind][str(data.get("rig", "paper_540m"))] = data  # files saved before --rig: the flat city
+    saved = {"information": {}, "data": {}, "triplets": {}}
+    for path in sorted(folder.glob("information_*.npz")):
+        data = dict(np.load(path))
+        saved["information"][str(data.get("rig", "paper_540m"))] = data  # files saved before --rig: the flat city
+    for path in sorted(folder.glob("data_bound_*.npz")):
+        data = dict(np.load(path))
+        if not int(data["max_features"]):
+            saved["triplets" if bool(data["triplets"]) else "data"][str(data["rig"])] = data
     cache = {}
 
     def bound(row) -> dict | None:
@@ -146,9 +150,11 @@ def bounds_in(folder: Path):
         if row["noise_realisations"] > 1:
             return None
         if key not in cache:
-            model, data = saved["information"].get(row["rig"]), saved["data_bound"].get(row["rig"])
+            model = saved["information"].get(row["rig"])
             out = (cramer_rao.configuration_bound(model, *key[1:]) if model is not None else None) or {}
-            out["data"] = data_bound.configuration_bound(data, *key[1:]) if data is not None else None
+            for which in ("data", "triplets"):
+                data = saved[which].get(row["rig"])
+                out[which] = data_bound.configuration_bound(data, *key[1:]) if data is not None else None
             cache[key] = out
         return cache[key]
 
@@ -183,13 +189,16 @@ def summarise(runs: pd.DataFrame, bound=lambda row: None) -> pd.DataFrame:
         row["best_below_truth"] = f"{int((g.best_f < g.f_truth).sum())}/{len(g)}"
         bounds = bound(first) or {}
         row["bound_information"] = bounds.get("information")
-        row["data_bound"] = bounds.get("data") is not None
         for k in ERRORS:
-            b, d = bounds.get(k), (bounds.get("data") or {}).get(k)
+            b = bounds.get(k)
             row[f"bound_{k}"] = b
             row[f"efficiency_{k}"] = b / row[k] if b is not None else None
-            row[f"data_bound_{k}"] = d
-            row[f"data_efficiency_{k}"] = d / row[k] if d is not None else None
+        for which in ("data", "triplets"):  # the data's bounds: the tracks, independent triplets
+            row[f"{which}_bound"] = bounds.get(which) is not None
+            for k in ERRORS:
+                d = (bounds.get(which) or {}).get(k)
+                row[f"{which}_bound_{k}"] = d
+                row[f"{which}_efficiency_{k}"] = d / row[k] if d is not None else None
         rows.append(row)
     return ordered(pd.DataFrame(rows))
 
@@ -220,7 +229,7 @@ def markdown(summary: pd.DataFrame) -> str:
     lines = ["| objective | drives | free | evaluations | seeds | rotation (deg) | focal (px) | principal point (px) | "
              "lever arm (cm) | ray error (deg) | held-out RMSE (m) | held-out − truth, paired (m) | held-out better "
              "than reference / than truth | best f below f(truth) | efficiency: rotation / focal / principal point / "
-             "lever arm | against the data's bound |", "|" + "---|" * 16]
+             "lever arm | against the data's bound: tracks | independent triplets |", "|" + "---|" * 17]
     for r in summary.itertuples():
         drives = f"{r.drives} × {r.noise_realisations} noise" if r.noise_realisations > 1 else f"{r.drives}"
         rig = getattr(r, "rig", "paper_540m")
@@ -231,7 +240,7 @@ def markdown(summary: pd.DataFrame) -> str:
                      f"{r.focal_error_px:.1f} | {r.principal_point_error_px:.1f} | {r.translation_error_cm:.1f} | "
                      f"{r.ray_error_deg:.2f} | {r.holdout_rmse_m:.2f} | {r.holdout_minus_truth_m:+.2f} | "
                      f"{r.holdout_better_than_reference} / {r.holdout_better_than_truth} | {r.best_below_truth} | "
-                     f"{_efficiencies(r)} | {_efficiencies(r, 'data_')} |")
+                     f"{_efficiencies(r)} | {_efficiencies(r, 'data')} | {_efficiencies(r, 'triplets')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -242,13 +251,13 @@ def _sigma_label(r) -> str:
 
 
 def _efficiencies(r, which: str = "") -> str:
-    """The row's efficiencies, bound ÷ achieved (``which``: "" the joint likelihood's bound, "data_" the
-    data's): '—' for an error whose variables are not all free, blank without a bound (OPG: the bound
-    from the scores' outer product)."""
-    has = bool(getattr(r, "data_bound", False)) if which else isinstance(getattr(r, "bound_information", None), str)
+    """The row's efficiencies, bound ÷ achieved (``which``: "" the joint likelihood's bound, "data" or
+    "triplets" the data's): '—' for an error whose variables are not all free, blank without a bound
+    (OPG: the bound from the scores' outer product)."""
+    has = bool(getattr(r, f"{which}_bound", False)) if which else isinstance(getattr(r, "bound_information", None), str)
     if not has:
         return ""
-    vals = [getattr(r, f"{which}efficiency_{k}") for k in ERRORS]
+    vals = [getattr(r, f"{which}_efficiency_{k}" if which else f"efficiency_{k}") for k in ERRORS]
     text = " / ".join("—" if v is None or pd.isna(v) else f"{v:.2f}" for v in vals)
     return text + (" (OPG)" if not which and r.bound_information == "opg" else "")
 

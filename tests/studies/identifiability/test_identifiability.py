@@ -51,7 +51,7 @@ def test_the_markdown_table_orders_the_rows_and_names_noise_realisations(load_sc
     rows = module.markdown(module.summarise(runs)).splitlines()
     assert len(rows) == 4 and rows[0].startswith("| objective |")
     assert rows[2].startswith("| position_rmse | 1 × 4 noise | 7 | 400 | 2 | 0.50 |")  # the paper's objective first
-    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 | 2 |") and rows[3].endswith("| 2/2 |  |  |")  # no bound
+    assert rows[3].startswith("| innovation_nll | 4 | 7 | 400 | 2 |") and rows[3].endswith("| 2/2 |  |  |  |")  # no bound
 
 
 def test_a_configuration_with_more_seeds_follows_the_same_one_with_fewer(load_script):
@@ -184,7 +184,9 @@ def test_each_rows_efficiency_is_its_bound_over_its_median_error(load_script):
         return {"information": "opg", "rotation_error_deg": 0.5, "focal_error_px": 0.25,
                 "principal_point_error_px": 2.0, "translation_error_cm": None,
                 "data": {"rotation_error_deg": 0.1, "focal_error_px": 0.05, "principal_point_error_px": 0.2,
-                         "translation_error_cm": None}}  # the data's: data_bound.configuration_bound
+                         "translation_error_cm": None},  # the data's: data_bound.configuration_bound
+                "triplets": {"rotation_error_deg": 0.3, "focal_error_px": 0.4, "principal_point_error_px": 0.6,
+                             "translation_error_cm": None}}
 
     summary = module.summarise(runs, bound)
     row = summary.iloc[0]  # the median error of each kind is 1.0
@@ -192,10 +194,12 @@ def test_each_rows_efficiency_is_its_bound_over_its_median_error(load_script):
     assert row.efficiency_principal_point_error_px == 2.0 and pd.isna(row.efficiency_translation_error_cm)
     assert row.bound_information == "opg"
     assert row.data_efficiency_rotation_error_deg == 0.1 and pd.isna(row.data_efficiency_translation_error_cm)
-    assert module.markdown(summary).splitlines()[2].endswith("| 0.50 / 0.25 / 2.00 / — (OPG) | 0.10 / 0.05 / 0.20 / — |")
-    # without the data's bound the last column is blank
+    assert row.triplets_efficiency_principal_point_error_px == 0.6
+    assert module.markdown(summary).splitlines()[2].endswith(
+        "| 0.50 / 0.25 / 2.00 / — (OPG) | 0.10 / 0.05 / 0.20 / — | 0.30 / 0.40 / 0.60 / — |")
+    # without the tracks' bound its column is blank
     no_data = module.summarise(runs, lambda row: {**bound(row), "data": None})
-    assert module.markdown(no_data).splitlines()[2].endswith("| 0.50 / 0.25 / 2.00 / — (OPG) |  |")
+    assert module.markdown(no_data).splitlines()[2].endswith("| 0.50 / 0.25 / 2.00 / — (OPG) |  | 0.30 / 0.40 / 0.60 / — |")
 
 
 def test_a_filter_assuming_another_pixel_noise_is_its_own_row_after_the_default_and_says_so(load_script):
