@@ -9,7 +9,7 @@ data instead (docs/model.md, Eqs. 58-61): every distinct pixel of the drive's in
 (white noise and bias random walks of the sequence's ImuNoise) and the filter's prior on the first
 state. The unknowns are every frame's IMU state (attitude, position, velocity, biases: 15), every
 landmark (3) and the ten calibration variables in the study's local space (px, deg, m); the points
-are projected out of their pixels' rows (:func:`points_projected_out`), the states by the Schur
+are eliminated through an orthonormal basis of their pixels' Jacobian (:func:`point_directions`), the states by the Schur
 complement (Eq. 61). Any unbiased estimator from the same data and prior, the filter included, has
 at least this covariance. It knows which features are outliers (they are left out whole), so it is
 optimistic there.
@@ -24,7 +24,7 @@ triplet's inliers, as many as an update uses (``FilterConfig.max_update_features
         [--triplets] [--max-features 16] [--save F.npz]
     python studies/identifiability/data_bound.py --load F.npz [--K 1 4 16]
 
-About 3 s of CPU per drive (a 78 s drive: 781 frames, ~20,000 pixels); no filter is run.
+About 4 s of CPU per drive (a 78 s drive: 781 frames, ~50,000 pixels of ~2,100 points); no filter is run.
 """
 
 from __future__ import annotations
@@ -93,27 +93,31 @@ def reprojection_jacobians(R, p, X, cal_plus, cal_minus) -> dict[str, np.ndarray
     return out
 
 
-def points_projected_out(block: np.ndarray, col_index: np.ndarray, point: np.ndarray):
-    """Each point's pixels with the point eliminated: the rows ``N^T J`` of its 2m whitened residuals, N the
-    left null space of their point Jacobian (complete QR), which carry the same information on everything
-    else as the Schur complement of the point's 3x3 block without inverting it (a point seen over a short
-    baseline makes that block nearly singular). block (n, 2, 19): per pixel, columns attitude, position
-    (6), point (3), calibration (10); col_index (n, 19); point (n,) its point. Yields (rows (n_m, 2m - 3,
-    6m + 10), columns (n_m, 6m + 10)) for the points of each observation count m."""
+def point_directions(block: np.ndarray, col_index: np.ndarray, point: np.ndarray, n_cols: int):
+    """The information each point's pixels give its own position, as rows ``W`` (sparse, 3 per point,
+    ``n_cols`` columns): ``Q^T J`` with Q the orthonormal basis of the point's whitened Jacobian (thin QR)
+    and J its pixels' other columns. ``J^T J - W^T W`` is the Schur complement of the points' blocks,
+    formed without inverting a 3x3 block that a short baseline leaves nearly singular (Eq. 61).
+    block (n, 2, 19): per pixel, columns attitude, position (6), point (3), calibration (10); col_index
+    (n, 19); point (n,) its point."""
     order = np.argsort(point, kind="stable")
     _, start, count = np.unique(point[order], return_index=True, return_counts=True)
+    rows, cols, vals = [], [], []
+    row = 0
     for m in np.unique(count):
         obs = order[start[count == m][:, None] + np.arange(m)]  # (n_m, m) pixels of each point
         b = block[obs]  # (n_m, m, 2, 19)
         n_m = len(obs)
-        J_point = b[..., 6:9].reshape(n_m, 2 * m, 3)
-        J_rest = np.zeros((n_m, 2 * m, 6 * m + 10))
-        for i in range(m):  # a pixel depends on its own frame's pose alone
-            J_rest[:, 2 * i:2 * i + 2, 6 * i:6 * i + 6] = b[:, i, :, :6]
-        J_rest[:, :, 6 * m:] = b[..., 9:].reshape(n_m, 2 * m, 10)
-        null = np.linalg.qr(J_point, mode="complete")[0][:, :, 3:]
-        cols = np.concatenate([col_index[obs][..., :6].reshape(n_m, 6 * m), col_index[obs[:, 0]][:, 9:]], axis=1)
-        yield np.swapaxes(null, 1, 2) @ J_rest, cols
+        Q = np.linalg.qr(b[..., 6:9].reshape(n_m, 2 * m, 3))[0].reshape(n_m, m, 2, 3)
+        pose = np.einsum("nirq,nirk->nqik", Q, b[..., :6]).reshape(n_m, 3, 6 * m)  # a pixel: its frame's pose
+        cal = np.einsum("nirq,nirk->nqk", Q, b[..., 9:])
+        W = np.concatenate([pose, cal], axis=2)  # (n_m, 3, 6m + 10)
+        c = np.concatenate([col_index[obs][..., :6].reshape(n_m, 6 * m), col_index[obs[:, 0]][:, 9:]], axis=1)
+        rows.append(np.repeat(row + np.arange(3 * n_m), W.shape[2]))
+        cols.append(np.repeat(c, 3, axis=0).ravel())
+        vals.append(W.ravel())
+        row += 3 * n_m
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_cols))
 
 
 def preintegrate(gyro: np.ndarray, accel: np.ndarray, bg: np.ndarray, ba: np.ndarray, dt: float):
@@ -231,22 +235,25 @@ def drive_information(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = 
     return calibration_information(*drive_jacobian(seq, world, decode, x_truth, pixels, rng))
 
 
-def calibration_information(J, n_x: int) -> np.ndarray:
-    """(10, 10) Schur complement of ``J^T J`` onto its last 10 columns (Eq. 61; J: the whitened
-    Jacobian, sparse, its first n_x columns the unknowns marginalised out)."""
-    info = (J.T @ J).tocsc()
-    scale = 1.0 / np.sqrt(info.diagonal())  # equilibrated: the states' information spans ~12 decades
+def calibration_information(J, n_x: int, W=None) -> np.ndarray:
+    """(10, 10) Schur complement of ``J^T J - W^T W`` onto its last 10 columns (Eq. 61; J: the whitened
+    Jacobian, sparse, its first n_x columns the unknowns marginalised out; W: :func:`point_directions`)."""
+    info = (J.T @ J - (W.T @ W if W is not None else 0)).tocsc()
+    d = info.diagonal()
+    scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))  # equilibrated: the states' information spans ~12 decades
     info = (sp.diags(scale) @ info @ sp.diags(scale)).tocsc()
     I_xx, I_xc, I_cc = info[:n_x, :n_x], info[:n_x, n_x:].toarray(), info[n_x:, n_x:].toarray()
-    I_cal = (I_cc - I_xc.T @ splu(I_xx).solve(I_xc)) / np.outer(scale[n_x:], scale[n_x:])
+    # a minimum-degree ordering of the symmetric pattern: SuperLU's default took 20x longer on a 78 s drive
+    lu = splu(I_xx, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+    I_cal = (I_cc - I_xc.T @ lu.solve(I_xc)) / np.outer(scale[n_x:], scale[n_x:])
     return 0.5 * (I_cal + I_cal.T)
 
 
 def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None, points: bool = False):
-    """(J, n_x): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
-    the prior; columns: 15 per frame, then the 10 calibration variables) at the truth, and the number of
-    columns before the calibration's. The points are projected out of the pixels' rows
-    (:func:`points_projected_out`); with ``points`` they are columns instead, 3 per point after the frames'."""
+    """(J, n_x, W): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
+    the prior; columns: 15 per frame, then the 10 calibration variables) at the truth, the number of
+    columns before the calibration's, and the points' rows to subtract (:func:`point_directions`); with
+    ``points`` the points are columns instead, 3 per point after the frames', and W is None."""
     from avio.filter.config import FilterConfig
 
     frame_t = seq.frame_t_s
@@ -282,11 +289,12 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
     block = np.concatenate([Jp["theta"], Jp["p"], Jp["X"], Jp["cal"]], axis=2) / sigma
     col_index = np.concatenate([STATE * frame[:, None] + np.arange(6), STATE * N + 3 * lm_col[:, None] + np.arange(3),
                                 np.broadcast_to(n_x + np.arange(10), (len(frame), 10))], axis=1)
+    W = None
     if points:
         put(block, col_index)
-    else:
-        for rows_m, cols_m in points_projected_out(block, col_index, lm_col):
-            put(rows_m, cols_m)
+    else:  # the points' columns dropped, their information subtracted (W)
+        put(block[..., np.r_[0:6, 9:19]], col_index[:, np.r_[0:6, 9:19]])
+        W = point_directions(block, col_index, lm_col, n_x + 10)
     # IMU between consecutive frames (Eqs. 59-61)
     dt = float(np.median(np.diff(seq.imu.t_s)))
     idx = at[:-1, None] + np.arange(per)
@@ -309,7 +317,7 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
                   [c.init_sigma_ba_mps2] * 3, [c.init_sigma_bg_radps] * 3]
     put(np.diag(1 / prior)[None], np.arange(15)[None])
     J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_x + 10))
-    return J, n_x
+    return J, n_x, W
 
 
 
