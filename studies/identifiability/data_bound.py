@@ -345,20 +345,31 @@ def measure(rig: str, seeds, n_drives: int, pixels: Pixels = Pixels()) -> dict:
     return {"information": np.array(out), "trajectory": np.array(trajectory, dtype=np.int64)}
 
 
+def undetermined(info: np.ndarray, free: list[str], A: np.ndarray, tol: float = 1e-9) -> list[str]:
+    """The free variables on which the data carry no information: their own information in ``A^T info A``
+    (numerically zero, either sign) at most ``tol`` times the largest (the flat city's dz: ~1e-6 per m^2
+    against ~1e4 for dx)."""
+    d = np.diag(A.T @ info @ A)
+    return [v for v, x in zip(free, d) if x <= tol * d.max()]
+
+
 def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_time_offset: bool = False,
                         seeds=(0, 1, 2, 3, 4), rng=None) -> dict | None:
     """The data's bound on each reported error of a study configuration (as cramer_rao.configuration_bound,
     from a ``--save`` file of this script, loaded): None with the time offset free (not modelled here);
-    an error whose variables are not all free gets None."""
+    an error whose variables are not all free gets None, and so does one whose variables the data do not
+    determine (:func:`undetermined`; the other errors' bounds are then taken with those at the truth: with
+    no information they carry no cross-information either)."""
     from cramer_rao import ERROR_VARIABLES, ERRORS, bound_covariance, configuration_map, median_error_bounds
 
     if with_time_offset:
         return None
+    info = saved["information"].mean(axis=0)
     A, free = configuration_map(VARS10, fixed, tie_focal)
-    try:
-        cov = bound_covariance(saved["information"].mean(axis=0), K, A)
-    except np.linalg.LinAlgError:  # a free direction the data do not determine (the flat city's dz): no bound
-        return None
+    lost = undetermined(info, free, A)
+    if lost:
+        A, free = configuration_map(VARS10, tuple(fixed) + tuple(lost), tie_focal)
+    cov = bound_covariance(info, K, A)
     rng = rng if rng is not None else np.random.default_rng(0)
     errs = median_error_bounds(cov, A, VARS10, str(saved["rig"]), seeds, rng)
     return {k: (errs[k] if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k]) else None)
@@ -401,10 +412,9 @@ def main(argv=None) -> None:
         which = ("independent triplets" if pixels.triplets else "the tracks") + (
             f", {pixels.max_features} features a triplet" if pixels.max_features else "")
         print(f"\nCramér–Rao bound of the data ({which}), {rig}, {label}: {len(info)} drives' mean information")
-        if np.linalg.eigvalsh(A.T @ mean @ A)[0] <= 1e-9 * np.abs(mean).max():
-            smallest = np.linalg.eigh(A.T @ mean @ A)[1][:, 0]
-            print("not identifiable: no information along "
-                  + ", ".join(f"{v} {c:+.3f}" for v, c in zip(free, smallest) if abs(c) > 1e-3))
+        lost = undetermined(mean, free, A)
+        if lost:
+            print(f"not identifiable: the data determine nothing along {', '.join(lost)}")
             continue
         print("| K | " + " | ".join(f"σ({v})" for v in free) + " | " + " | ".join(ERRORS) + " |")
         print("|---|" + "---|" * (len(free) + len(ERRORS)))

@@ -80,3 +80,13 @@ def test_planar_motion_leaves_the_lever_arm_along_its_rotation_axis_free_and_the
     assert sigma["full3d_540m"]["dz"] < 0.1
     for rig in sigma:  # the rest of the lever arm and the rotation are determined on both (dz at the truth)
         assert sigma[rig]["dx"] < 0.1 and max(sigma[rig][v] for v in ("rx", "ry", "rz")) < 0.5
+
+
+def test_a_variable_without_information_is_named_undetermined_and_a_weak_one_is_not(load_script):
+    module = load_script("data_bound")
+    info = np.diag([1e2, 2.6e-2, 1e2, 1e2, 1e4, 4e2, 1e4, 7e3, 5e3, 1e-6])  # the flat city's scales: fy weak, dz none
+    info[9, 9] = -1e-6  # a zero measured by subtraction may come out negative
+    A, free = np.eye(10), list(module.VARS10)
+    assert module.undetermined(info, free, A) == ["dz"]
+    info[9, 9] = 50.0
+    assert module.undetermined(info, free, A) == []
