@@ -215,11 +215,17 @@ def main(argv=None) -> None:
     print(f"Fisher information of the joint likelihood per drive ({keep.sum()}{' typical' if args.typical else ''} "
           f"drives, {'mean Hessian' if args.information == 'hessian' else 'outer product of the scores'}); "
           f"{rig}, {free}")
+    print_bounds(info, A, names, measured, rig, args.K, args.seeds, rng)
+
+
+def print_bounds(info: np.ndarray, A: np.ndarray, names, measured: tuple[str, ...], rig: str, Ks, seeds, rng) -> None:
+    """The bound's Markdown table: per number of drives K, each free variable's standard deviation
+    (``names``, A's columns) and each reported error's median bound over cameras ``seeds``."""
     print("| K | " + " | ".join(f"σ({n})" for n in names) + " | " + " | ".join(ERRORS) + " |")
     print("|---|" + "---|" * (len(names) + len(ERRORS)))
-    for K in args.K:
+    for K in Ks:
         cov = bound_covariance(info, K, A)
-        errs = median_error_bounds(cov, A, measured, rig, args.seeds, rng)
+        errs = median_error_bounds(cov, A, measured, rig, seeds, rng)
         print(f"| {K} | " + " | ".join(f"{s:.3g}" for s in np.sqrt(np.diag(cov))) + " | "
               + " | ".join(f"{errs[k]:.3g}" for k in ERRORS) + " |")
 

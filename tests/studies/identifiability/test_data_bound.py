@@ -1,4 +1,5 @@
-"""studies/identifiability/data_bound.py: the data's Cramér–Rao bound from the simulator's own model.
+"""studies/identifiability/data_bound.py and drive_model.py: the data's Cramér–Rao bound from the
+simulator's own model.
 
 The model's residuals vanish at the truth (its pixels are the simulator's, its IMU residual is the
 Euler step's error alone); the sparse Schur complement is the dense inverse's; and the physics of
@@ -20,7 +21,7 @@ def _drive(rig: str, seconds: float, **overrides):
 
 @pytest.mark.parametrize("rig", ["paper_540m", "full3d_540m"])
 def test_the_models_pixels_are_the_simulators_and_its_imu_residual_is_the_euler_steps_error(load_script, rig):
-    module = load_script("data_bound")
+    module = load_script("drive_model")
     seq, world = _drive(rig, 6.0, imu_noise_on=False)
     frame, lm, _ = module.drive_observations(seq, world)  # also checks the re-drawn tracks against the sequence's
     c, n = seq.truth_calibration, len(frame)
