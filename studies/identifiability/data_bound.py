@@ -9,9 +9,9 @@ data instead (docs/model.md, Eqs. 58-61): every distinct pixel of the drive's in
 (white noise and bias random walks of the sequence's ImuNoise) and the filter's prior on the first
 state. The unknowns are every frame's IMU state (attitude, position, velocity, biases: 15), every
 landmark (3) and the ten calibration variables in the study's local space (px, deg, m); the points
-are eliminated through an orthonormal basis of their pixels' Jacobian (:func:`point_directions`), the states by the Schur
-complement (Eq. 61). Any unbiased estimator from the same data and prior, the filter included, has
-at least this covariance. It knows which features are outliers (they are left out whole), so it is
+are eliminated through an orthonormal basis of their pixels' Jacobian (:func:`point_directions`),
+the states by the Schur complement (Eq. 61). Any unbiased estimator from the same data and prior, the
+filter included, has at least this covariance. It knows which features are outliers (they are left out whole), so it is
 optimistic there.
 
 Which data (:class:`Pixels`): by default the drive's pixels as they are, a landmark's pixels linked
@@ -23,6 +23,12 @@ triplet's inliers, as many as an update uses (``FilterConfig.max_update_features
     python studies/identifiability/data_bound.py [--rig paper_540m] [--seeds 0 1 2 3 4] [--drives 10] [--K 1 4 16]
         [--triplets] [--max-features 16] [--save F.npz]
     python studies/identifiability/data_bound.py --load F.npz [--K 1 4 16]
+    python studies/identifiability/data_bound.py --rig full3d_540m --check 20 [--duration 78]
+
+``--check R`` tests the model against the simulator: over R noise realisations of one trajectory the
+linearised maximum-likelihood estimate (one Gauss-Newton step from the truth on each realisation's own
+data) must scatter as the bound says (:func:`check`; the flat city's dz, undetermined, leaves no
+covariance to compare).
 
 About 4 s of CPU per drive (a 78 s drive: 781 frames, ~50,000 pixels of ~2,100 points); no filter is run.
 """
@@ -43,7 +49,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
-from drive_model import CAL_STEP, Pixels, drive_observations, imu_factors, reprojection_jacobians
+from drive_model import CAL_STEP, Pixels, drive_observations, imu_factors, imu_residual, project, reprojection_jacobians
 
 #: the local space's variables, the order of the information's rows (cramer_rao.SPACE_VARIABLES)
 VARS10 = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
@@ -81,7 +87,7 @@ def drive_information(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = 
     """(10, 10) Fisher information of the calibration's local variables (VARS10) on one simulated drive,
     every frame state and landmark marginalised out (module docstring; decode: the problem's local
     space decode, x_truth its truth there)."""
-    return calibration_information(*drive_jacobian(seq, world, decode, x_truth, pixels, rng))
+    return calibration_information(*drive_jacobian(seq, world, decode, x_truth, pixels, rng)[:3])
 
 
 def calibration_information(J, n_x: int, W=None) -> np.ndarray:
@@ -99,10 +105,12 @@ def calibration_information(J, n_x: int, W=None) -> np.ndarray:
 
 
 def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None, points: bool = False):
-    """(J, n_x, W): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
+    """(J, n_x, W, f): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
     the prior; columns: 15 per frame, then the 10 calibration variables) at the truth, the number of
-    columns before the calibration's, and the points' rows to subtract (:func:`point_directions`); with
-    ``points`` the points are columns instead, 3 per point after the frames', and W is None."""
+    columns before the calibration's, the points' rows to subtract (:func:`point_directions`; with
+    ``points`` the points are columns instead, 3 per point after the frames', and W is None), and the
+    whitened residuals at the truth, model minus measurement, row by row: the drive's own noise (the
+    IMU's without the Euler step's error: its noise-free samples' residual subtracted)."""
     from avio.filter.config import FilterConfig
 
     frame_t = seq.frame_t_s
@@ -113,20 +121,21 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
     if not np.all(np.diff(at) == per) or not np.allclose(seq.imu.t_s[at], frame_t):
         raise ValueError(f"{seq.name}: frames must fall on IMU samples at a fixed ratio")
     ba, bg = world.accel_bias_mps2[at], world.gyro_bias_radps[at]
-    frame, lm, lm_col = drive_observations(seq, world, pixels, rng)
+    frame, lm, lm_col, uv = drive_observations(seq, world, pixels, rng)
     L = int(lm_col.max()) + 1 if points else 0
     n_x = STATE * N + 3 * L
-    rows, cols, vals = [], [], []
+    rows, cols, vals, res = [], [], [], []
     row = 0
 
-    def put(block: np.ndarray, col_index: np.ndarray) -> None:
-        """Rows (n, r, c) of the whitened Jacobian with columns (n, c)."""
+    def put(block: np.ndarray, col_index: np.ndarray, f: np.ndarray) -> None:
+        """Rows (n, r, c) of the whitened Jacobian with columns (n, c), and their residuals (n, r)."""
         nonlocal row
         n, r, c = block.shape
         rr = row + np.arange(n * r).reshape(n, r)
         rows.append(np.repeat(rr[:, :, None], c, axis=2).ravel())
         cols.append(np.broadcast_to(col_index[:, None, :], (n, r, c)).ravel())
         vals.append(block.ravel())
+        res.append(np.broadcast_to(f, (n, r)).ravel())
         row += n * r
 
     # pixels (Eq. 58)
@@ -138,11 +147,17 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
     block = np.concatenate([Jp["theta"], Jp["p"], Jp["X"], Jp["cal"]], axis=2) / sigma
     col_index = np.concatenate([STATE * frame[:, None] + np.arange(6), STATE * N + 3 * lm_col[:, None] + np.arange(3),
                                 np.broadcast_to(n_x + np.arange(10), (len(frame), 10))], axis=1)
+    c = seq.truth_calibration
+    n = len(frame)
+    seen = project(st.R_world_imu[frame], st.p_world_imu_m[frame], world.landmarks_world[lm],
+                   *(np.full(n, v[0]) for v in (c.fx_px, c.fy_px, c.cx_px, c.cy_px)),
+                   np.broadcast_to(c.R_cam_imu[0], (n, 3, 3)), np.broadcast_to(c.p_imu_cam_m[0], (n, 3)))
+    f_pix = (seen - uv) / sigma
     W = None
     if points:
-        put(block, col_index)
+        put(block, col_index, f_pix)
     else:  # the points' columns dropped, their information subtracted (W)
-        put(block[..., np.r_[0:6, 9:19]], col_index[:, np.r_[0:6, 9:19]])
+        put(block[..., np.r_[0:6, 9:19]], col_index[:, np.r_[0:6, 9:19]], f_pix)
         W = point_directions(block, col_index, lm_col, n_x + 10)
     # IMU between consecutive frames (Eqs. 59-61)
     dt = float(np.median(np.diff(seq.imu.t_s)))
@@ -150,24 +165,74 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
     noise = seq.imu_noise
     truth = (st.R_world_imu[:-1], st.p_world_imu_m[:-1], st.v_world_imu_mps[:-1], ba[:-1], bg[:-1],
              st.R_world_imu[1:], st.p_world_imu_m[1:], st.v_world_imu_mps[1:])
-    Ji = imu_factors(truth, seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], dt, seq.gravity_world_mps2,
-                     noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
+    gyro, accel, g = seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], seq.gravity_world_mps2
+    Ji, Li = imu_factors(truth, gyro, accel, dt, g, noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
+    clean = world.trajectory(seq.imu.t_s[idx].ravel())  # the samples without noise: R^T (a - g) + b, w + b
+    accel0 = (np.einsum("nji,nj->ni", clean.R_world_imu, clean.a_world_mps2 - g).reshape(accel.shape)
+              + world.accel_bias_mps2[idx])
+    gyro0 = clean.omega_imu_radps.reshape(gyro.shape) + world.gyro_bias_radps[idx]
+    z0, z1 = np.zeros((N - 1, 15)), np.zeros((N - 1, 9))
+    f_imu = np.linalg.solve(Li, (imu_residual(truth, z0, z1, gyro, accel, dt, g)
+                                 - imu_residual(truth, z0, z1, gyro0, accel0, dt, g))[..., None])[..., 0]
     k = np.arange(N - 1)[:, None]
-    put(Ji, np.concatenate([STATE * k + np.arange(15), STATE * (k + 1) + np.arange(9)], axis=1))
+    put(Ji, np.concatenate([STATE * k + np.arange(15), STATE * (k + 1) + np.arange(9)], axis=1), f_imu)
     # bias random walks
     T = dt * per
     walk = np.r_[[noise.accel_bias_walk * np.sqrt(T)] * 3, [noise.gyro_bias_walk * np.sqrt(T)] * 3]
     eye = np.eye(6) / walk
     put(np.concatenate([np.broadcast_to(-eye, (N - 1, 6, 6)), np.broadcast_to(eye, (N - 1, 6, 6))], axis=2),
-        np.concatenate([STATE * k + 9 + np.arange(6), STATE * (k + 1) + 9 + np.arange(6)], axis=1))
+        np.concatenate([STATE * k + 9 + np.arange(6), STATE * (k + 1) + 9 + np.arange(6)], axis=1),
+        np.diff(np.concatenate([ba, bg], axis=1), axis=0) / walk)
     # the filter's prior on the first state (Eq. 9)
-    c = FilterConfig()
-    prior = np.r_[[c.init_sigma_theta_rad] * 3, [c.init_sigma_p_m] * 3, [c.init_sigma_v_mps] * 3,
-                  [c.init_sigma_ba_mps2] * 3, [c.init_sigma_bg_radps] * 3]
-    put(np.diag(1 / prior)[None], np.arange(15)[None])
+    fc = FilterConfig()
+    prior = np.r_[[fc.init_sigma_theta_rad] * 3, [fc.init_sigma_p_m] * 3, [fc.init_sigma_v_mps] * 3,
+                  [fc.init_sigma_ba_mps2] * 3, [fc.init_sigma_bg_radps] * 3]
+    put(np.diag(1 / prior)[None], np.arange(15)[None], np.zeros(15))  # the filter starts at the truth
     J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_x + 10))
-    return J, n_x, W
+    return J, n_x, W, np.concatenate(res)
 
+
+def linearised_estimate(seq, world, decode, x_truth: np.ndarray, rng, pixels: Pixels = Pixels()):
+    """One Gauss-Newton step from the truth on the drive's own noisy data (:func:`drive_jacobian`'s
+    residuals; the prior's, zero for the filter, drawn with ``rng`` as its sigmas say): the linearised
+    maximum-likelihood estimate's calibration error (10,) in the local variables, and the drive's
+    information (10, 10). Over noise realisations the errors' covariance is the bound where the model's
+    noise is the simulator's (:func:`check`)."""
+    J, n_x, _, f = drive_jacobian(seq, world, decode, x_truth, pixels, points=True)
+    f[-15:] = rng.standard_normal(15)  # the prior's rows come last
+    normal = (J.T @ J).tocsc()
+    scale = 1.0 / np.sqrt(normal.diagonal())
+    step = -scale * splu((sp.diags(scale) @ normal @ sp.diags(scale)).tocsc(), permc_spec="MMD_AT_PLUS_A").solve(
+        scale * (J.T @ f))
+    return step[n_x:], calibration_information(J, n_x)
+
+
+def check(rig: str, seed: int, realisations: int, duration_s: float, pixels: Pixels = Pixels()) -> dict:
+    """The bound against the scatter of :func:`linearised_estimate` over ``realisations`` noise realisations of
+    one trajectory of camera ``seed`` (``duration_s`` long): ``ratio`` (10,) each variable's variance over its
+    bound, ``trace`` ``tr(I C) / 10`` (1 where the model's noise is the drive's), ``t`` (10,) each mean error's
+    t-statistic (0: no bias)."""
+    from information_equality import reference_all_problem
+    from objective_bias import FRESH_SEED0
+
+    from avio.sim.simulator import SimConfig, simulate_world
+    from bench.problems.synthetic import NOISE_WORD
+
+    problem = reference_all_problem(seed, rig)
+    rng = np.random.default_rng(seed)
+    errors, infos = [], []
+    for r in range(1, realisations + 1):
+        seq, world = simulate_world(getattr(SimConfig, rig)(duration_s=duration_s), (seed, FRESH_SEED0),
+                                    true_calibration=problem.sequence.truth_calibration,
+                                    noise_seed=(seed, FRESH_SEED0, NOISE_WORD, r))
+        e, info = linearised_estimate(seq, world, problem.calibration_space.decode, problem.truth, rng, pixels)
+        errors.append(e)
+        infos.append(info)
+    errors, info = np.array(errors), np.mean(infos, axis=0)
+    C = np.cov(errors.T)
+    return {"ratio": np.diag(C) / np.diag(np.linalg.inv(info)),
+            "trace": float(np.trace(info @ C) / len(info)),
+            "t": errors.mean(axis=0) / (errors.std(axis=0, ddof=1) / np.sqrt(len(errors)))}
 
 
 def measure(rig: str, seeds, n_drives: int, pixels: Pixels = Pixels()) -> dict:
@@ -236,9 +301,21 @@ def main(argv=None) -> None:
     parser.add_argument("--max-features", type=int, help="keep this many inlier features of every triplet")
     parser.add_argument("--triplets", action="store_true",
                         help="each triplet feature its own point and pixels (Pixels)")
+    parser.add_argument("--check", type=int, metavar="R",
+                        help="instead: the bound against the linearised ML estimate's scatter over R noise "
+                             "realisations of one trajectory of the first camera (check)")
+    parser.add_argument("--duration", type=float, default=78.0, help="--check: the drive's length, s")
     parser.add_argument("--save", type=Path)
     parser.add_argument("--load", type=Path)
     args = parser.parse_args(argv)
+    if args.check:
+        out = check(args.rig, args.seeds[0], args.check, args.duration, Pixels(args.max_features, args.triplets))
+        print(f"{args.rig}, camera {args.seeds[0]}, {args.duration:g} s, {args.check} noise realisations: "
+              f"tr(I C)/10 = {out['trace']:.2f}")
+        print("| | " + " | ".join(VARS10) + " |\n|---|" + "---|" * 10)
+        print("| variance ÷ bound | " + " | ".join(f"{v:.2f}" for v in out["ratio"]) + " |")
+        print("| mean error's t | " + " | ".join(f"{v:+.2f}" for v in out["t"]) + " |")
+        return
     if args.load:
         saved = np.load(args.load)
         rig, info = str(saved["rig"]), saved["information"]

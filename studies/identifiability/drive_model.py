@@ -89,9 +89,10 @@ def imu_residual(truth, x0: np.ndarray, x1: np.ndarray, gyro, accel, dt: float, 
 
 
 def imu_factors(truth, gyro, accel, dt: float, gravity: np.ndarray, accel_sigma: float, gyro_sigma: float):
-    """Whitened Jacobians (n, 9, 24) of the IMU residual in the states ``[x_k (15), x_{k+1} (theta, p, v)]``
-    of each interval (n intervals of s samples; per-sample noise sigmas), by central differences; the
-    residual's covariance is the samples' noise carried through the preintegration (Eq. 61)."""
+    """The IMU residual of each interval (n intervals of s samples; per-sample noise sigmas) in the states
+    ``[x_k (15), x_{k+1} (theta, p, v)]``: (whitened Jacobians (n, 9, 24) by central differences, Cholesky
+    factors (n, 9, 9) of the residual's covariance, the samples' noise carried through the
+    preintegration (Eq. 61))."""
     n = len(gyro)
     z0, z1 = np.zeros((n, 15)), np.zeros((n, 9))
     J = np.zeros((n, 9, 24))
@@ -120,7 +121,7 @@ def imu_factors(truth, gyro, accel, dt: float, gravity: np.ndarray, accel_sigma:
                      - imu_residual(truth, z0, z1, *args_down, dt, gravity)) / (2 * h)
                 cov += sigma**2 * d[:, :, None] * d[:, None, :]
     L = np.linalg.cholesky(cov)
-    return np.linalg.solve(L, J)
+    return np.linalg.solve(L, J), L
 
 
 class Pixels(NamedTuple):  # a NamedTuple: the tests load this script by path, outside sys.modules
@@ -134,10 +135,11 @@ class Pixels(NamedTuple):  # a NamedTuple: the tests load this script by path, o
     triplets: bool = False
 
 
-def drive_observations(seq, world, pixels: Pixels = Pixels(), rng=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def drive_observations(seq, world, pixels: Pixels = Pixels(), rng=None):
     """The drive's inlier pixels: (frame (m,), landmark (m,) row of ``world.landmarks_world``, point (m,):
-    the unknown point each belongs to), from the simulator's own tracks (the triplets re-drawn with the
-    sequence's tracks stream, checked equal to the sequence's); rng draws ``pixels.max_features``."""
+    the unknown point each belongs to, uv (m, 2) the measured pixel), from the simulator's own tracks (the
+    triplets re-drawn with the sequence's tracks stream, checked equal to the sequence's); rng draws
+    ``pixels.max_features``."""
     from avio.sim.camera import simulate_tracks
     from avio.sim.simulator import SimConfig, _seed_streams  # the sequence's own random streams
 
@@ -159,7 +161,8 @@ def drive_observations(seq, world, pixels: Pixels = Pixels(), rng=None) -> tuple
     t, f = np.nonzero(keep)
     frames = np.concatenate([tracks.frame_index[t] - 2 + j for j in range(3)])
     landmarks = np.tile(details["landmark_id"][t, f], 3)
+    uv = np.concatenate([tracks.uv_px[t, f, j] for j in range(3)])
     if pixels.triplets:
-        return frames, landmarks, np.tile(np.arange(len(t)), 3)
-    pairs = np.unique(np.stack([frames, landmarks], axis=1), axis=0)
-    return pairs[:, 0], pairs[:, 1], np.unique(pairs[:, 1], return_inverse=True)[1]
+        return frames, landmarks, np.tile(np.arange(len(t)), 3), uv
+    pairs, first = np.unique(np.stack([frames, landmarks], axis=1), axis=0, return_index=True)
+    return pairs[:, 0], pairs[:, 1], np.unique(pairs[:, 1], return_inverse=True)[1], uv[first]
