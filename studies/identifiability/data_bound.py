@@ -56,16 +56,17 @@ VARS10 = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
 STATE = 15  # per frame: attitude (rad, body), position (m), velocity (m/s), accel bias, gyro bias
 
 
-def point_directions(block: np.ndarray, col_index: np.ndarray, point: np.ndarray, n_cols: int):
+def point_directions(block: np.ndarray, col_index: np.ndarray, point: np.ndarray, n_cols: int, f: np.ndarray):
     """The information each point's pixels give its own position, as rows ``W`` (sparse, 3 per point,
     ``n_cols`` columns): ``Q^T J`` with Q the orthonormal basis of the point's whitened Jacobian (thin QR)
     and J its pixels' other columns. ``J^T J - W^T W`` is the Schur complement of the points' blocks,
     formed without inverting a 3x3 block that a short baseline leaves nearly singular (Eq. 61).
     block (n, 2, 19): per pixel, columns attitude, position (6), point (3), calibration (10); col_index
-    (n, 19); point (n,) its point."""
+    (n, 19); point (n,) its point; f (n, 2) the pixels' whitened residuals. Returns (W, g): g = ``Q^T f``
+    per point, so that ``J^T f - W^T g`` is the residual's part the points leave."""
     order = np.argsort(point, kind="stable")
     _, start, count = np.unique(point[order], return_index=True, return_counts=True)
-    rows, cols, vals = [], [], []
+    rows, cols, vals, g = [], [], [], []
     row = 0
     for m in np.unique(count):
         obs = order[start[count == m][:, None] + np.arange(m)]  # (n_m, m) pixels of each point
@@ -76,11 +77,13 @@ def point_directions(block: np.ndarray, col_index: np.ndarray, point: np.ndarray
         cal = np.einsum("nirq,nirk->nqk", Q, b[..., 9:])
         W = np.concatenate([pose, cal], axis=2)  # (n_m, 3, 6m + 10)
         c = np.concatenate([col_index[obs][..., :6].reshape(n_m, 6 * m), col_index[obs[:, 0]][:, 9:]], axis=1)
+        g.append(np.einsum("nirq,nir->nq", Q, f[obs]).ravel())
         rows.append(np.repeat(row + np.arange(3 * n_m), W.shape[2]))
         cols.append(np.repeat(c, 3, axis=0).ravel())
         vals.append(W.ravel())
         row += 3 * n_m
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_cols))
+    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_cols))
+    return W, np.concatenate(g)
 
 
 def drive_information(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None) -> np.ndarray:
@@ -105,12 +108,12 @@ def calibration_information(J, n_x: int, W=None) -> np.ndarray:
 
 
 def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pixels(), rng=None, points: bool = False):
-    """(J, n_x, W, f): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
+    """(J, n_x, W, f, g): the whitened Jacobian (sparse CSR, rows: residuals of Eqs. 58, 60, the bias walks and
     the prior; columns: 15 per frame, then the 10 calibration variables) at the truth, the number of
     columns before the calibration's, the points' rows to subtract (:func:`point_directions`; with
-    ``points`` the points are columns instead, 3 per point after the frames', and W is None), and the
+    ``points`` the points are columns instead, 3 per point after the frames', and W, g are None), the
     whitened residuals at the truth, model minus measurement, row by row: the drive's own noise (the
-    IMU's without the Euler step's error: its noise-free samples' residual subtracted)."""
+    IMU's without the Euler step's error: its noise-free samples' residual subtracted), and W's (g)."""
     from avio.filter.config import FilterConfig
 
     frame_t = seq.frame_t_s
@@ -153,27 +156,27 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
                    *(np.full(n, v[0]) for v in (c.fx_px, c.fy_px, c.cx_px, c.cy_px)),
                    np.broadcast_to(c.R_cam_imu[0], (n, 3, 3)), np.broadcast_to(c.p_imu_cam_m[0], (n, 3)))
     f_pix = (seen - uv) / sigma
-    W = None
+    W, g = None, None
     if points:
         put(block, col_index, f_pix)
     else:  # the points' columns dropped, their information subtracted (W)
         put(block[..., np.r_[0:6, 9:19]], col_index[:, np.r_[0:6, 9:19]], f_pix)
-        W = point_directions(block, col_index, lm_col, n_x + 10)
+        W, g = point_directions(block, col_index, lm_col, n_x + 10, f_pix)
     # IMU between consecutive frames (Eqs. 59-61)
     dt = float(np.median(np.diff(seq.imu.t_s)))
     idx = at[:-1, None] + np.arange(per)
     noise = seq.imu_noise
     truth = (st.R_world_imu[:-1], st.p_world_imu_m[:-1], st.v_world_imu_mps[:-1], ba[:-1], bg[:-1],
              st.R_world_imu[1:], st.p_world_imu_m[1:], st.v_world_imu_mps[1:])
-    gyro, accel, g = seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], seq.gravity_world_mps2
-    Ji, Li = imu_factors(truth, gyro, accel, dt, g, noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
+    gyro, accel, grav = seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], seq.gravity_world_mps2
+    Ji, Li = imu_factors(truth, gyro, accel, dt, grav, noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
     clean = world.trajectory(seq.imu.t_s[idx].ravel())  # the samples without noise: R^T (a - g) + b, w + b
-    accel0 = (np.einsum("nji,nj->ni", clean.R_world_imu, clean.a_world_mps2 - g).reshape(accel.shape)
+    accel0 = (np.einsum("nji,nj->ni", clean.R_world_imu, clean.a_world_mps2 - grav).reshape(accel.shape)
               + world.accel_bias_mps2[idx])
     gyro0 = clean.omega_imu_radps.reshape(gyro.shape) + world.gyro_bias_radps[idx]
     z0, z1 = np.zeros((N - 1, 15)), np.zeros((N - 1, 9))
-    f_imu = np.linalg.solve(Li, (imu_residual(truth, z0, z1, gyro, accel, dt, g)
-                                 - imu_residual(truth, z0, z1, gyro0, accel0, dt, g))[..., None])[..., 0]
+    f_imu = np.linalg.solve(Li, (imu_residual(truth, z0, z1, gyro, accel, dt, grav)
+                                 - imu_residual(truth, z0, z1, gyro0, accel0, dt, grav))[..., None])[..., 0]
     k = np.arange(N - 1)[:, None]
     put(Ji, np.concatenate([STATE * k + np.arange(15), STATE * (k + 1) + np.arange(9)], axis=1), f_imu)
     # bias random walks
@@ -189,7 +192,7 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
                   [fc.init_sigma_ba_mps2] * 3, [fc.init_sigma_bg_radps] * 3]
     put(np.diag(1 / prior)[None], np.arange(15)[None], np.zeros(15))  # the filter starts at the truth
     J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, n_x + 10))
-    return J, n_x, W, np.concatenate(res)
+    return J, n_x, W, np.concatenate(res), g
 
 
 def linearised_estimate(seq, world, decode, x_truth: np.ndarray, rng, pixels: Pixels = Pixels()):
@@ -198,13 +201,13 @@ def linearised_estimate(seq, world, decode, x_truth: np.ndarray, rng, pixels: Pi
     maximum-likelihood estimate's calibration error (10,) in the local variables, and the drive's
     information (10, 10). Over noise realisations the errors' covariance is the bound where the model's
     noise is the simulator's (:func:`check`)."""
-    J, n_x, _, f = drive_jacobian(seq, world, decode, x_truth, pixels, points=True)
+    J, n_x, W, f, g = drive_jacobian(seq, world, decode, x_truth, pixels)
     f[-15:] = rng.standard_normal(15)  # the prior's rows come last
-    normal = (J.T @ J).tocsc()
+    normal = (J.T @ J - W.T @ W).tocsc()
     scale = 1.0 / np.sqrt(normal.diagonal())
     step = -scale * splu((sp.diags(scale) @ normal @ sp.diags(scale)).tocsc(), permc_spec="MMD_AT_PLUS_A").solve(
-        scale * (J.T @ f))
-    return step[n_x:], calibration_information(J, n_x)
+        scale * (J.T @ f - W.T @ g))
+    return step[n_x:], calibration_information(J, n_x, W)
 
 
 def check(rig: str, seed: int, realisations: int, duration_s: float, pixels: Pixels = Pixels()) -> dict:

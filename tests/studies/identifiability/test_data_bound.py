@@ -58,7 +58,7 @@ def test_points_eliminated_by_qr_and_the_sparse_schur_complement_give_the_dense_
     decode, x_truth, true_cal = _space("full3d_540m", 3.0)
     seq, world = simulate_world(SimConfig.full3d_540m(duration_s=3.0), (0, 100), true_calibration=true_cal)
     pixels = module.Pixels(triplets=triplets)
-    J, n_x, _, _ = module.drive_jacobian(seq, world, decode, x_truth, pixels, points=True)
+    J, n_x = module.drive_jacobian(seq, world, decode, x_truth, pixels, points=True)[:2]
     assert n_x > module.STATE * len(seq.frame_t_s)  # the points are columns here
     dense = np.linalg.inv(np.linalg.inv((J.T @ J).toarray())[n_x:, n_x:])
     tolerance = {"rtol": 1e-6, "atol": 1e-6 * np.abs(dense).max()}
