@@ -49,7 +49,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "studies" / "objective"))
 sys.path.insert(0, str(ROOT / "studies" / "identifiability"))
 
-from drive_model import CAL_STEP, Pixels, drive_observations, imu_factors, imu_residual, project, reprojection_jacobians
+from drive_model import CAL_STEP, Pixels, drive_observations, imu_factors, imu_residual, reprojection_jacobians
+
+from avio.sim.simulator import synthesize_imu
 
 #: the local space's variables, the order of the information's rows (cramer_rao.SPACE_VARIABLES)
 VARS10 = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "dx", "dy", "dz")
@@ -142,20 +144,14 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
         row += n * r
 
     # pixels (Eq. 58)
-    X = decode(np.repeat(x_truth[None], 20, axis=0) + np.vstack([np.diag(CAL_STEP), -np.diag(CAL_STEP)]))
-    cal_plus, cal_minus = X[:10], X[10:]
+    X = decode(np.repeat(x_truth[None], 21, axis=0) + np.vstack([np.diag(CAL_STEP), -np.diag(CAL_STEP), np.zeros(10)]))
     Jp = reprojection_jacobians(st.R_world_imu[frame], st.p_world_imu_m[frame], world.landmarks_world[lm],
-                                cal_plus, cal_minus)
+                                X[20:], X[:10], X[10:20])
     sigma = float(seq.meta["config"]["pixel_noise_px"])
     block = np.concatenate([Jp["theta"], Jp["p"], Jp["X"], Jp["cal"]], axis=2) / sigma
     col_index = np.concatenate([STATE * frame[:, None] + np.arange(6), STATE * N + 3 * lm_col[:, None] + np.arange(3),
                                 np.broadcast_to(n_x + np.arange(10), (len(frame), 10))], axis=1)
-    c = seq.truth_calibration
-    n = len(frame)
-    seen = project(st.R_world_imu[frame], st.p_world_imu_m[frame], world.landmarks_world[lm],
-                   *(np.full(n, v[0]) for v in (c.fx_px, c.fy_px, c.cx_px, c.cy_px)),
-                   np.broadcast_to(c.R_cam_imu[0], (n, 3, 3)), np.broadcast_to(c.p_imu_cam_m[0], (n, 3)))
-    f_pix = (seen - uv) / sigma
+    f_pix = (Jp["uv"] - uv) / sigma
     W, g = None, None
     if points:
         put(block, col_index, f_pix)
@@ -170,10 +166,9 @@ def drive_jacobian(seq, world, decode, x_truth: np.ndarray, pixels: Pixels = Pix
              st.R_world_imu[1:], st.p_world_imu_m[1:], st.v_world_imu_mps[1:])
     gyro, accel, grav = seq.imu.gyro_imu_radps[idx], seq.imu.accel_imu_mps2[idx], seq.gravity_world_mps2
     Ji, Li = imu_factors(truth, gyro, accel, dt, grav, noise.accel_noise / np.sqrt(dt), noise.gyro_noise / np.sqrt(dt))
-    clean = world.trajectory(seq.imu.t_s[idx].ravel())  # the samples without noise: R^T (a - g) + b, w + b
-    accel0 = (np.einsum("nji,nj->ni", clean.R_world_imu, clean.a_world_mps2 - grav).reshape(accel.shape)
-              + world.accel_bias_mps2[idx])
-    gyro0 = clean.omega_imu_radps.reshape(gyro.shape) + world.gyro_bias_radps[idx]
+    clean = synthesize_imu(world.trajectory, seq.imu.t_s[idx].ravel(), grav, None, np.zeros(3), np.zeros(3), None)[0]
+    accel0 = clean.accel_imu_mps2.reshape(accel.shape) + world.accel_bias_mps2[idx]  # the samples without noise
+    gyro0 = clean.gyro_imu_radps.reshape(gyro.shape) + world.gyro_bias_radps[idx]
     z0, z1 = np.zeros((N - 1, 15)), np.zeros((N - 1, 9))
     f_imu = np.linalg.solve(Li, (imu_residual(truth, z0, z1, gyro, accel, dt, grav)
                                  - imu_residual(truth, z0, z1, gyro0, accel0, dt, grav))[..., None])[..., 0]

@@ -33,25 +33,26 @@ def _rotate(R: np.ndarray, axis: int, h: float) -> np.ndarray:
     return R @ so3_exp(e)
 
 
-def reprojection_jacobians(R, p, X, cal_plus, cal_minus) -> dict[str, np.ndarray]:
-    """Central-difference Jacobians of :func:`project` at the truth, per observation: ``theta``,
-    ``p``, ``X`` (n, 2, 3) and ``cal`` (n, 2, 10) (cal_plus/cal_minus: the 10 calibrations one step up
-    and down each local variable, as Calibration batches of 10)."""
+def reprojection_jacobians(R, p, X, cal_truth, cal_plus, cal_minus) -> dict[str, np.ndarray]:
+    """Each observation's pixel ``uv`` (n, 2) at the truth (cal_truth: a Calibration batch of 1) and the
+    central-difference Jacobians of :func:`project` there: ``theta``, ``p``, ``X`` (n, 2, 3) and ``cal``
+    (n, 2, 10) (cal_plus/cal_minus: the 10 calibrations one step up and down each local variable, as
+    Calibration batches of 10)."""
     def cam(c, j):
         n = len(R)
         return (np.full(n, c.fx_px[j]), np.full(n, c.fy_px[j]), np.full(n, c.cx_px[j]), np.full(n, c.cy_px[j]),
                 np.broadcast_to(c.R_cam_imu[j], (n, 3, 3)), np.broadcast_to(c.p_imu_cam_m[j], (n, 3)))
 
-    mid = cam(cal_plus, 0)  # any camera near the truth: pose and point derivatives change by O(step)
-    out = {k: np.zeros((len(R), 2, 3)) for k in ("theta", "p", "X")}
+    truth = cam(cal_truth, 0)
+    out = {"uv": project(R, p, X, *truth), **{k: np.zeros((len(R), 2, 3)) for k in ("theta", "p", "X")}}
     for a in range(3):
         hr, hp = 1e-6, 1e-5
-        up, down = project(_rotate(R, a, hr), p, X, *mid), project(_rotate(R, a, -hr), p, X, *mid)
+        up, down = project(_rotate(R, a, hr), p, X, *truth), project(_rotate(R, a, -hr), p, X, *truth)
         out["theta"][:, :, a] = (up - down) / (2 * hr)
         e = np.zeros(3)
         e[a] = hp
-        out["p"][:, :, a] = (project(R, p + e, X, *mid) - project(R, p - e, X, *mid)) / (2 * hp)
-        out["X"][:, :, a] = (project(R, p, X + e, *mid) - project(R, p, X - e, *mid)) / (2 * hp)
+        out["p"][:, :, a] = (project(R, p + e, X, *truth) - project(R, p - e, X, *truth)) / (2 * hp)
+        out["X"][:, :, a] = (project(R, p, X + e, *truth) - project(R, p, X - e, *truth)) / (2 * hp)
     out["cal"] = np.stack([(project(R, p, X, *cam(cal_plus, j)) - project(R, p, X, *cam(cal_minus, j)))
                            / (2 * CAL_STEP[j]) for j in range(10)], axis=2)
     return out
