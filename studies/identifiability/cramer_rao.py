@@ -172,10 +172,18 @@ def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_t
     info, kind = fisher_information(H), "hessian"
     if np.linalg.eigvalsh(A.T @ info @ A)[0] <= 0:
         info, kind = outer_product_information(g), "opg"
+    return {"information": kind, **free_error_bounds(info, K, A, free, tie_focal, measured, rig, seeds, rng)}
+
+
+def free_error_bounds(info: np.ndarray, K: int, A: np.ndarray, free: list[str], tie_focal: bool,
+                      measured: tuple[str, ...], rig: str, seeds=(0, 1, 2, 3, 4), rng=None) -> dict:
+    """Each reported error's bound after K drives (:func:`median_error_bounds`) for the free variables
+    ``free`` (A: :func:`configuration_map`), None for an error whose variables are not all free (a fixed
+    variable's error is the fixed value's, not an estimate's)."""
     cov = bound_covariance(info, K, A)
     errs = median_error_bounds(cov, A, measured, rig, seeds, rng if rng is not None else np.random.default_rng(0))
-    return {"information": kind, **{k: (v if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k])
-                                       else None) for k, v in errs.items()}}
+    return {k: (v if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k]) else None)
+            for k, v in errs.items()}
 
 
 def main(argv=None) -> None:

@@ -272,20 +272,17 @@ def configuration_bound(saved, K: int, fixed=(), tie_focal: bool = False, with_t
     an error whose variables are not all free gets None, and so does one whose variables the data do not
     determine (:func:`undetermined`; the other errors' bounds are then taken with those at the truth: with
     no information they carry no cross-information either)."""
-    from cramer_rao import ERROR_VARIABLES, ERRORS, bound_covariance, configuration_map, median_error_bounds
+    from cramer_rao import configuration_map, free_error_bounds
 
-    if with_time_offset:
+    mapped = configuration_map(VARS10, fixed, tie_focal, with_time_offset)
+    if mapped is None:
         return None
     info = saved["information"].mean(axis=0)
-    A, free = configuration_map(VARS10, fixed, tie_focal)
+    A, free = mapped
     lost = undetermined(info, free, A)
     if lost:
         A, free = configuration_map(VARS10, tuple(fixed) + tuple(lost), tie_focal)
-    cov = bound_covariance(info, K, A)
-    rng = rng if rng is not None else np.random.default_rng(0)
-    errs = median_error_bounds(cov, A, VARS10, str(saved["rig"]), seeds, rng)
-    return {k: (errs[k] if all(x in free or (tie_focal and x == "fy") for x in ERROR_VARIABLES[k]) else None)
-            for k in ERRORS}
+    return free_error_bounds(info, K, A, free, tie_focal, VARS10, str(saved["rig"]), seeds, rng)
 
 
 def main(argv=None) -> None:
