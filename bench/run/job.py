@@ -29,8 +29,9 @@ from bench.run.loop import Budget, JobFolderError, RunError, record_failure, run
 log = logging.getLogger(__name__)
 hydra_guard.install()  # here too for a launcher's worker, which imports this module to unpickle its job
 
-# settings that change how a job is shown, not what it computes: left out of its identity
-PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict", "log_metrics")
+# settings that change how a job is shown or run, not what it computes: left out of its identity
+PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict", "log_metrics",
+                     "threads")
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
@@ -107,10 +108,34 @@ def log_metrics_of(cfg: dict) -> str:
     return value
 
 
+def check_thread_environment() -> None:
+    """ConfigError when NUMBA_NUM_THREADS (what ``threads: auto`` follows; numba reads it at import and fails
+    deep in a job on 0) is set but not an integer >= 1; empty counts as unset."""
+    value = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+    if value and not (value.isdigit() and int(value) >= 1):
+        raise ConfigError(f"NUMBA_NUM_THREADS={value!r} (environment): must be an integer >= 1 (numba reads it; "
+                          "threads=auto follows it); unset it for the machine's cores")
+
+
+def threads_of(cfg: dict) -> int | None:
+    """The VIO filter's threads per job (``threads``): an integer from 1 to this machine's cores, or
+    None for ``auto`` (avio.filter.batch.default_threads); ConfigError naming the key otherwise."""
+    check_thread_environment()  # whatever ``threads`` says: numba reads it when it is imported
+    value = cfg.get("threads", "auto")
+    if value == "auto" or value is None:
+        return None
+    cores = os.cpu_count() or 1
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= cores:
+        raise ConfigError(f"threads must be auto or an integer from 1 to {cores} (this machine's cores), got {value!r}")
+    return value
+
+
 def check_presentation(cfg: dict) -> None:
-    """ConfigError naming the first invalid presentation setting (``progress_every_s``, ``log_metrics``)."""
+    """ConfigError naming the first invalid presentation setting (``progress_every_s``, ``log_metrics``,
+    ``threads``)."""
     progress_every_s_of(cfg)
     log_metrics_of(cfg)
+    threads_of(cfg)
 
 
 def identity_of(cfg: dict) -> dict:
@@ -131,6 +156,15 @@ def optimizer_factory(cfg: dict, space):
     return lambda: cls(space.lower, space.upper, seed=seed, x0=space.reference, **params)
 
 
+def _apply_threads(n: int | None) -> None:
+    """Set the filter's thread count for this process's jobs (``threads``; auto: its default rule)."""
+    if n is None and "avio.filter.batch" not in sys.modules:
+        return  # auto and no filter loaded yet: nothing to restore, and no reason to import numba here
+    from avio.filter.batch import set_threads
+
+    set_threads(n)
+
+
 def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
     """Run one composed job config into ``job_dir`` and return its outcome; never raises.
 
@@ -141,6 +175,7 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
     identity = identity_of(cfg)
     try:
         import_plugins(cfg)
+        _apply_threads(threads_of(cfg))
         print(f"{label}: building problem {cfg['problem']['name']}", file=sys.stderr, flush=True)
         try:
             problem = build_problem(cfg)

@@ -5,15 +5,15 @@ of 0 or a missing data file would surface only after the first jobs ran. Here th
 line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
 with Hydra's compose API, and each is checked: the instance (an integer >= 0), the report's verdict
 settings (``bench.verdict_settings``), registered names, plugins, budget, seed, progress interval,
-no NaN, the problem's own cheap checks (``Problem.preflight``: its search space, its data files),
-the problem itself (built once per distinct problem config, as the first job would build it: a
-serial sweep's jobs then reuse it), the optimiser built on the job's space with its
-hyperparameters (and asked once), the sweep folder (a writable folder), and every job
-folder that already exists (it must hold this very job — same resolved config —, not be in use by another
-process, and hold no symbolic link in place of its files).
-The first problem found is one clear message and exit code 2; nothing has been written.
-A problem whose truth lies outside its search bounds is warned about, one line per problem, before the
-sweep starts (``bench.run.design_checks``).
+the filter's threads (``threads``, NUMBA_NUM_THREADS), no NaN, the problem's own cheap checks
+(``Problem.preflight``: its search space, its data files), the problem itself (built once per
+distinct problem config, as the first job would build it: a serial sweep's jobs then reuse it), the
+optimiser built on the job's space with its hyperparameters (and asked once), the sweep folder (a
+writable folder), and every job folder that already exists (it must hold this very job — same
+resolved config —, not be in use by another process, and hold no symbolic link in place of its
+files). The first problem found is one clear message and exit code 2; nothing has been written.
+A problem whose truth lies outside its search bounds is warned about, one line per problem, before
+the sweep starts (``bench.run.design_checks``).
 """
 
 from __future__ import annotations
@@ -348,6 +348,7 @@ def plan(argv: list[str]) -> SweepPlan:
                                  default=str)
                 if key not in seen:
                     seen.add(key)
+                    check_presentation(cfg)  # first: threads=auto reads NUMBA_NUM_THREADS before numba is imported
                     check_design(cfg)  # the instance and the report's settings, before the problem is built
                     check_job(cfg, truths)
                 result.n_jobs += 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -54,6 +55,9 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["verdict.key=camera"], "verdict.key = 'camera': the records lack this key, so runs cannot be paired on it"),
         (["+verdict.pairs=all"], "verdict: unknown setting(s) ['pairs']; valid: key, test, family, alpha, rope"),
         (["progress_every_s=abc"], "progress_every_s must be a positive number of seconds, got 'abc'"),
+        (["threads=0"], "threads must be auto or an integer from 1 to"),
+        (["threads=abc"], "threads must be auto or an integer from 1 to"),
+        ([f"threads={(os.cpu_count() or 1) + 1}"], f"(this machine's cores), got {(os.cpu_count() or 1) + 1}"),
         (["plugins=[.evil]"], "plugins: '.evil' is not an absolute module name"),
         (["plugins=['']"], "plugins: '' is not an absolute module name"),
         (["plugins=[1]"], "plugins: 1 is not an absolute module name"),
