@@ -93,7 +93,8 @@ def patch_kernels(src: str) -> str:
     at = "avio/filter/kernels.py"
     src = _replace(src, "def run_filters(lo, hi, seq, cal, cfg, out):", "def run_filters(lo, hi, seq, cal, cfg, out, rep):", at)
     src = _replace(src, "record, decided)\n", "record, decided, rep)\n", at)
-    # the frame loop (_run_range, which may not allocate) gets rep and the scratch copies from run_filters
+    # the frame loop (_run_range, which may not allocate: no slice assignment, which needs numba's
+    # reference counting, so the copies go through _linalg.copy2) gets rep and the scratch copies from run_filters
     src = _replace(src, "zero_velocity_workspace(), fws)\n",
                    "zero_velocity_workspace(), fws, rep, np.empty((27, 27)), np.empty((27, 27)),\n"
                    "               np.empty((2, 3)), np.empty((2, 3, 3)))\n", at)
@@ -101,12 +102,12 @@ def patch_kernels(src: str) -> str:
                    "def _run_range(lo, hi, seq, cal, cfg, out, uws, pws, zws, fws, rep, Ps, Ps2, cps, cRs):", at)
     src = _wrap(src, "                propagate_one(", "                propagate_covariance(P, Phi", 7, at)
     src = _replace(src, "                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)\n",
-                   "                for _q in range(rep[8] - 1):\n                    Ps[:] = P\n"
+                   "                for _q in range(rep[8] - 1):\n                    copy2(Ps, P)\n"
                    "                    propagate_covariance(Ps, Phi, seq.Qd[k], Tq, U)\n"
                    "                propagate_covariance(P, Phi, seq.Qd[k], Tq, U)\n", at)
     src = _replace(src, "            slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)\n",
-                   "            for _q in range(rep[9] - 1):\n                Ps2[:] = P\n                cps[:] = cp\n"
-                   "                cRs[:] = cR\n"
+                   "            for _q in range(rep[9] - 1):\n                copy2(Ps2, P)\n                copy2(cps, cp)\n"
+                   "                copy2(cRs[0], cR[0])\n                copy2(cRs[1], cR[1])\n"
                    "                slide(R_new, p_new, v_new, omega, cal.td_s[i], cps, cRs, Ps2, R3, p3, Jsh, E, NR)\n"
                    "            slide(R_new, p_new, v_new, omega, cal.td_s[i], cp, cR, P, R3, p3, Jsh, E, NR)\n", at)
     return src
