@@ -19,6 +19,15 @@ the simplest of its dense phases) written three ways, timed side by side, bits c
   lane loops (with a run-time alias check each).
 
     python benchmarks/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
+    python benchmarks/bench_layout.py --phase solve [--lanes 4 8] [--repeats 7]
+
+``--phase solve``: the update's 12x12 solve ``(I + A Sigma) X = [A | beta]`` (avio.filter._linalg.solve,
+Gaussian elimination with partial pivoting, 13 right-hand sides), the committed per-filter code
+against L filters in lock-step with a pivot per lane (the lane axis innermost, the pivot search
+and the eliminations packed across lanes, each lane's row swap its own; compiled with both
+switches), on systems shaped like the filter's (A, Sigma symmetric positive semi-definite, so
+I + A Sigma is not symmetric and pivots differ between lanes). Each call solves copies of the
+same systems (the copies are timed with either variant).
 
 Prints CPU microseconds per filter and call (median of --repeats; process CPU time, fairer than
 wall time on a shared machine), the median of the per-repeat ratios to ``committed`` (each repeat
@@ -42,8 +51,9 @@ from llvmlite import binding as llvm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from simd import fp_counts, njit_packed, slp_vectorize
+from simd import fp_counts, kernel_jit, njit_packed, slp_vectorize
 
+from avio.filter._linalg import solve
 from avio.filter.kernels import propagate_covariance
 
 committed = numba.njit(error_model="numpy")(propagate_covariance.py_func)  # uncached: its assembly can be read
@@ -179,13 +189,158 @@ def _prepare(candidates, P, Phi, Qd, reference) -> dict:
     return state
 
 
+def solve_lanes_kernel(L: int):
+    """solve of L systems in lock-step: A (m, m, L), B (m, k, L); scratch piv (L,) int64, big, inv,
+    f (L,), ra (m, L), rb (k, L). Each lane does the operations of :func:`avio.filter._linalg.solve`
+    in its order: its own pivot (the first largest |A[i, c]|), its own swap, and an elimination step
+    skipped where its factor is zero, here by a select (the same bits: the skipped update is not
+    computed). The pivot row and the row being solved are copied to ra, rb: a row read and another
+    row of the same array written in one lane loop could alias for LLVM, which then packs nothing."""
+
+    def lanes(A, B, piv, big, inv, f, ra, rb):
+        m, k = A.shape[0], B.shape[1]
+        for c in range(m):
+            for q in range(L):
+                piv[q], big[q] = c, abs(A[c, c, q])
+            for i in range(c + 1, m):
+                for q in range(L):
+                    v = abs(A[i, c, q])
+                    piv[q] = i if v > big[q] else piv[q]
+                    big[q] = v if v > big[q] else big[q]
+            for q in range(L):  # a lane's swap is its own (rows differ per lane: no common vector)
+                p = piv[q]
+                if p != c:
+                    for j in range(m):
+                        A[c, j, q], A[p, j, q] = A[p, j, q], A[c, j, q]
+                    for j in range(k):
+                        B[c, j, q], B[p, j, q] = B[p, j, q], B[c, j, q]
+            for j in range(m):
+                for q in range(L):
+                    ra[j, q] = A[c, j, q]
+            for j in range(k):
+                for q in range(L):
+                    rb[j, q] = B[c, j, q]
+            for q in range(L):
+                inv[q] = 1.0 / ra[c, q]
+            for i in range(c + 1, m):
+                for q in range(L):
+                    f[q] = A[i, c, q] * inv[q]
+                for j in range(c + 1, m):
+                    for q in range(L):
+                        a = A[i, j, q]
+                        A[i, j, q] = a - f[q] * ra[j, q] if f[q] != 0.0 else a
+                for j in range(k):
+                    for q in range(L):
+                        b = B[i, j, q]
+                        B[i, j, q] = b - f[q] * rb[j, q] if f[q] != 0.0 else b
+        for c in range(m - 1, -1, -1):
+            for j in range(k):
+                for q in range(L):
+                    rb[j, q] = B[c, j, q]
+            for i in range(c + 1, m):
+                for q in range(L):
+                    f[q] = A[c, i, q]
+                for j in range(k):
+                    for q in range(L):
+                        rb[j, q] -= f[q] * B[i, j, q]
+            for q in range(L):
+                inv[q] = 1.0 / A[c, c, q]
+            for j in range(k):
+                for q in range(L):
+                    B[c, j, q] = rb[j, q] * inv[q]
+
+    return njit_packed(lanes, error_model="numpy")
+
+
+@numba.njit
+def _solve_calls(kernel, A0, B0, A, B, n):
+    for _ in range(n):
+        for i in range(A0.shape[0]):
+            for j in range(A0.shape[1]):
+                A[i, j] = A0[i, j]
+            for j in range(B0.shape[1]):
+                B[i, j] = B0[i, j]
+        kernel(A, B)
+
+
+@numba.njit
+def _solve_lane_calls(kernel, A0, B0, A, B, piv, big, inv, f, ra, rb, n):
+    for _ in range(n):
+        for i in range(A0.shape[0]):
+            for j in range(A0.shape[1]):
+                for q in range(A0.shape[2]):
+                    A[i, j, q] = A0[i, j, q]
+            for j in range(B0.shape[1]):
+                for q in range(B0.shape[2]):
+                    B[i, j, q] = B0[i, j, q]
+        kernel(A, B, piv, big, inv, f, ra, rb)
+
+
+def _systems(n: int, seed: int = 0):
+    """n systems shaped like the update's: M = I + A Sigma (12, 12) and [A | beta] (12, 13)."""
+    rng = np.random.default_rng(seed)
+    J, S = rng.normal(size=(n, 24, 12)), rng.normal(size=(n, 12, 12))
+    A = np.einsum("nki,nkj->nij", J, J)
+    Sig = np.einsum("nik,njk->nij", S, S) * 0.05
+    M = np.eye(12) + A @ Sig
+    return M, np.concatenate([A, rng.normal(size=(n, 12, 1))], axis=2)
+
+
+def solve_phase(args) -> None:
+    """--phase solve: the committed per-filter solve against L filters in lock-step (module docstring)."""
+    Ls = sorted(set(args.lanes))
+    M, X = _systems(max(Ls))
+    ref_A, ref_B = M.copy(), X.copy()
+    for i in range(len(M)):
+        solve(ref_A[i], ref_B[i])
+    kernels = {L: solve_lanes_kernel(L) for L in Ls}
+    state = {}
+    for L, kernel in kernels.items():
+        A0, B0 = np.ascontiguousarray(M[:L].transpose(1, 2, 0)), np.ascontiguousarray(X[:L].transpose(1, 2, 0))
+        scratch = (np.empty(L, np.int64), np.empty(L), np.empty(L), np.empty(L), np.empty((12, L)), np.empty((13, L)))
+        A, B = A0.copy(), B0.copy()
+        with slp_vectorize(True):
+            _solve_lane_calls(kernel, A0, B0, A, B, *scratch, 1)
+        same = np.array_equal(A.transpose(2, 0, 1), ref_A[:L]) and np.array_equal(B.transpose(2, 0, 1), ref_B[:L])
+        state[L] = (A0, B0, A, B, scratch, same)
+    committed_solve = kernel_jit(solve.py_func, cache=False)  # the kernel's compile, uncached: its assembly can be read
+    A, B = M[0].copy(), X[0].copy()
+    with slp_vectorize(True):
+        _solve_calls(committed_solve, M[0], X[0], A, B, 1)
+    times = {"committed": [], **{L: [] for L in Ls}}
+    rng = np.random.default_rng(0)
+    for _ in range(args.repeats):  # paired: every variant once per repeat, in a new order each
+        for name in rng.permutation(np.array(list(times), dtype=object)):
+            L = 1 if name == "committed" else name
+            n = max(1, args.calls // L)
+            t = time.process_time()
+            if name == "committed":
+                _solve_calls(committed_solve, M[0], X[0], A, B, n)
+            else:
+                A0, B0, AL, BL, scratch, _ = state[name]
+                _solve_lane_calls(kernels[name], A0, B0, AL, BL, *scratch, n)
+            times[name].append((time.process_time() - t) / (n * L) * 1e6)
+    base = np.asarray(times["committed"])
+    print(f"12x12 solve with 13 right-hand sides, median of {args.repeats} x {args.calls} filter-calls, CPU time "
+          f"(numba {numba.__version__}, CPU {llvm.get_host_cpu_name()})")
+    print(f"  {'committed':24s} {np.median(base):7.3f} us/filter  {1.0:5.2f}x  bit-identical=True  "
+          f"({_counts(committed_solve)})")
+    for L in Ls:
+        us = np.asarray(times[L])
+        print(f"  {f'lanes {L} +noalias+SLP':24s} {np.median(us):7.3f} us/filter  {np.median(base / us):5.2f}x  "
+              f"bit-identical={state[L][5]}  ({_counts(kernels[L])})")
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--phase", choices=["prediction", "solve"], default="prediction")
     p.add_argument("--lanes", type=int, nargs="+", default=[4, 8, 16])
     p.add_argument("--runtime-lanes", type=int, nargs="+", default=[8, 32, 64])
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--calls", type=int, default=20000, help="filter-calls per timing")
     args = p.parse_args(argv)
+    if args.phase == "solve":
+        return solve_phase(args)
     P, Phi, Qd = _inputs(max(args.lanes + args.runtime_lanes))
     reference = P.copy()
     T, U = np.empty((15, 27)), np.empty((15, 15))
@@ -204,12 +359,13 @@ def main(argv=None) -> None:
             t = time.process_time()
             _calls(kernel, work, Phi0, Qd, T0, U0, n)
             times[name].append((time.process_time() - t) / (n * L) * 1e6)
-    base = np.asarray(times["committed"])
+    base, ours = np.asarray(times["committed"]), np.asarray(times["committed +noalias+SLP"])
     print(f"covariance prediction, median of {args.repeats} x {args.calls} filter-calls, CPU time "
-          f"(numba {numba.__version__}, CPU {llvm.get_host_cpu_name()})")
+          f"(numba {numba.__version__}, CPU {llvm.get_host_cpu_name()}); x: against committed, and against "
+          "the kernel's own compile (committed +noalias+SLP)")
     for name, (kernel, _, _) in candidates.items():
         us = np.asarray(times[name])
-        print(f"  {name:24s} {np.median(us):7.3f} us/filter  {np.median(base / us):5.2f}x  "
+        print(f"  {name:24s} {np.median(us):7.3f} us/filter  {np.median(base / us):5.2f}x  {np.median(ours / us):5.2f}x  "
               f"bit-identical={state[name][1]}  ({_counts(kernel)})")
 
 

@@ -11,6 +11,7 @@ import re
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -72,6 +73,25 @@ def test_every_layout_of_the_prediction_gives_the_committed_bits(load_script, ca
     assert counts["lanes 4"][1] == 0 and counts["lanes 4"][0] > 0  # numba's defaults: scalar
     if llvm.get_host_cpu_features().get("avx", False):
         assert counts["lanes 4 +noalias+SLP"][0] == 0 and counts["lanes 4 +noalias+SLP"][1] > 0, counts
+
+
+def test_the_solve_in_lock_step_gives_every_lanes_bits_and_packs(load_script, capsys):
+    """--phase solve: L systems with a pivot per lane give each system's bits of the kernel's solve
+    (the inputs pivot differently per lane), and the lane code is packed (with AVX)."""
+    from llvmlite import binding as llvm
+
+    layout = load_script("bench_layout")
+    M, X = layout._systems(8)
+    first = np.abs(M[:, :, 0]).argmax(axis=1)
+    assert len(set(first.tolist())) > 1  # the lanes' first pivots differ: the per-lane swap is exercised
+    layout.main(["--phase", "solve", "--lanes", "4", "8", "--repeats", "1", "--calls", "16"])
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "us/filter" in ln]
+    assert [ln.split(" us/filter")[0].rsplit(None, 1)[0].strip() for ln in lines] == [
+        "committed", "lanes 4 +noalias+SLP", "lanes 8 +noalias+SLP"]
+    assert all("bit-identical=True" in ln for ln in lines), lines
+    if llvm.get_host_cpu_features().get("avx", False):
+        packed = [int(re.search(r"(\d+) packed", ln).group(1)) for ln in lines[1:]]
+        assert min(packed) > 0, lines
 
 
 def test_a_tree_override_without_a_value_is_refused_before_any_work(load_script, capsys):
