@@ -1,40 +1,34 @@
-"""Does a vectorising layout pay for the filter's dense phases (issue 13)? The covariance
-prediction ``P <- F P F^T + Q`` (avio.filter.kernels.propagate_covariance, ~6 % of the kernel and
-the simplest of its dense phases) written three ways, timed side by side, bits compared:
+"""Does a layout across filters (lock-step lanes, issues 13 and 30) pay, phase by phase? Each phase
+of the kernel's per-filter code against L filters in lock-step (the lane axis innermost, L a
+compile-time constant), timed side by side, bits compared, scalar and packed FP64 instructions
+counted (benchmarks/simd.py: fp_counts).
 
-- ``committed``: one filter, constant loop bounds (27, 15): LLVM unrolls the rows and its SLP
-  vectoriser cannot prove the arrays apart, so the code is scalar (``vmulsd``);
-- ``rows``: one filter, bounds read from the shapes: LLVM's loop vectoriser versions every row
-  loop on a run-time alias check and runs it in 4-wide AVX2 (``vmulpd``);
-- ``lanes L``: L filters in lock-step, the calibration axis innermost (P (27, 27, L)), L a
-  compile-time constant, meant to make each multiply-add one L-wide operation across filters
-  (the layout issue 13 proposes). Compiled as numba does by default, LLVM unrolls the constant
-  lane loops and leaves them scalar: numba tells it nothing about aliasing and its SLP vectoriser
-  is off, so this variant alone was not a fair test of the layout (issue 30);
-- ``lanes L +noalias+SLP``: the same source with the array arguments declared non-aliasing and
-  LLVM's SLP vectoriser on (benchmarks/simd.py: how numba 0.68.1 exposes both), which packs
-  the lane loops;
-- ``committed +noalias+SLP``: the committed function with the same two switches;
-- ``lanes L (run-time)``: the lane count read from the shape, so the loop vectoriser takes the
-  lane loops (with a run-time alias check each).
-
-    python benchmarks/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
-    python benchmarks/bench_layout.py --phase solve [--lanes 4 8] [--repeats 7]
+``--phase prediction`` (default): the covariance prediction ``P <- F P F^T + Q``
+(avio.filter.kernels.propagate_covariance) as ``committed`` (numba's defaults: constant bounds,
+LLVM unrolls the rows and leaves them scalar), ``rows`` (bounds read from the shapes: vectorised
+behind a run-time alias check per row), ``committed +noalias+SLP`` (the kernel's own compile),
+``lanes L`` (numba's defaults: the lane loops stay scalar, which made the first test of the layout
+unfair), ``lanes L +noalias+SLP`` (non-aliasing arrays and LLVM's SLP vectoriser: packed) and
+``lanes L (run-time)`` (the lane count read from the shape).
 
 ``--phase solve``: the update's 12x12 solve ``(I + A Sigma) X = [A | beta]`` (avio.filter._linalg.solve,
-Gaussian elimination with partial pivoting, 13 right-hand sides), the committed per-filter code
-against L filters in lock-step with a pivot per lane (the lane axis innermost, the pivot search
-and the eliminations packed across lanes, each lane's row swap its own; compiled with both
-switches), on systems shaped like the filter's (A, Sigma symmetric positive semi-definite, so
-I + A Sigma is not symmetric and pivots differ between lanes). Each call solves copies of the
-same systems (the copies are timed with either variant).
+partial pivoting, 13 right-hand sides) against L systems in lock-step with a pivot per lane (the
+pivot search and the eliminations packed across lanes, each lane's row swap its own), on systems
+shaped like the filter's whose pivots differ between lanes; each call solves fresh copies.
 
-Prints CPU microseconds per filter and call (median of --repeats; process CPU time, fairer than
-wall time on a shared machine), the median of the per-repeat ratios to ``committed`` (each repeat
-times every variant once, in a new random order: paired), whether the result is bit-identical, and
-the count of scalar and packed FP64 arithmetic instructions of each compiled version
-(benchmarks/simd.py: fp_counts; deterministic, unlike the times). Written out here, not in avio: these are the alternatives measured, not the
-kernel.
+``--phase features``: what lock-step could buy the phases that already run features last (packed
+along a frame's features): L filters' feature innovations (avio.filter.outliers) and noise model
+(avio.filter.update._noise_model) in lock-step do at best what one call over their features
+concatenated does, each filter's 12x12 Cholesky of Sigma added back (the concatenated call
+factors one): per filter, (the call on F L features) / L + (1 - 1/L) Cholesky against the call on F.
+
+    python benchmarks/bench_layout.py [--lanes 4 8 16] [--repeats 7] [--calls 20000]
+    python benchmarks/bench_layout.py --phase solve [--lanes 4 8 16] [--repeats 15]
+    python benchmarks/bench_layout.py --phase features [--features 50] [--lanes 4 8] [--repeats 15]
+
+Prints CPU microseconds per filter (median of --repeats; process CPU time) and the medians of the
+per-repeat ratios (each repeat times every variant once, in a new random order: paired). Written
+out here, not in avio: these are the alternatives measured, not the kernel.
 """
 
 from __future__ import annotations
@@ -55,6 +49,8 @@ from simd import fp_counts, kernel_jit, njit_packed, slp_vectorize
 
 from avio.filter._linalg import solve
 from avio.filter.kernels import propagate_covariance
+from avio.filter.outliers import _cholesky, feature_innovations_into
+from avio.filter.update import _noise_model
 
 committed = numba.njit(error_model="numpy")(propagate_covariance.py_func)  # uncached: its assembly can be read
 committed_packed = njit_packed(propagate_covariance.py_func, error_model="numpy")  # compiled with SLP on
@@ -255,24 +251,16 @@ def solve_lanes_kernel(L: int):
 @numba.njit
 def _solve_calls(kernel, A0, B0, A, B, n):
     for _ in range(n):
-        for i in range(A0.shape[0]):
-            for j in range(A0.shape[1]):
-                A[i, j] = A0[i, j]
-            for j in range(B0.shape[1]):
-                B[i, j] = B0[i, j]
+        A[:] = A0
+        B[:] = B0
         kernel(A, B)
 
 
 @numba.njit
 def _solve_lane_calls(kernel, A0, B0, A, B, piv, big, inv, f, ra, rb, n):
     for _ in range(n):
-        for i in range(A0.shape[0]):
-            for j in range(A0.shape[1]):
-                for q in range(A0.shape[2]):
-                    A[i, j, q] = A0[i, j, q]
-            for j in range(B0.shape[1]):
-                for q in range(B0.shape[2]):
-                    B[i, j, q] = B0[i, j, q]
+        A[:] = A0
+        B[:] = B0
         kernel(A, B, piv, big, inv, f, ra, rb)
 
 
@@ -290,11 +278,9 @@ def solve_phase(args) -> None:
     """--phase solve: the committed per-filter solve against L filters in lock-step (module docstring)."""
     Ls = sorted(set(args.lanes))
     M, X = _systems(max(Ls))
-    ref_A, ref_B = M.copy(), X.copy()
+    ref_A, ref_B, state, kernels = M.copy(), X.copy(), {}, {L: solve_lanes_kernel(L) for L in Ls}
     for i in range(len(M)):
         solve(ref_A[i], ref_B[i])
-    kernels = {L: solve_lanes_kernel(L) for L in Ls}
-    state = {}
     for L, kernel in kernels.items():
         A0, B0 = np.ascontiguousarray(M[:L].transpose(1, 2, 0)), np.ascontiguousarray(X[:L].transpose(1, 2, 0))
         scratch = (np.empty(L, np.int64), np.empty(L), np.empty(L), np.empty(L), np.empty((12, L)), np.empty((13, L)))
@@ -307,8 +293,7 @@ def solve_phase(args) -> None:
     A, B = M[0].copy(), X[0].copy()
     with slp_vectorize(True):
         _solve_calls(committed_solve, M[0], X[0], A, B, 1)
-    times = {"committed": [], **{L: [] for L in Ls}}
-    rng = np.random.default_rng(0)
+    times, rng = {"committed": [], **{L: [] for L in Ls}}, np.random.default_rng(0)
     for _ in range(args.repeats):  # paired: every variant once per repeat, in a new order each
         for name in rng.permutation(np.array(list(times), dtype=object)):
             L = 1 if name == "committed" else name
@@ -317,8 +302,7 @@ def solve_phase(args) -> None:
             if name == "committed":
                 _solve_calls(committed_solve, M[0], X[0], A, B, n)
             else:
-                A0, B0, AL, BL, scratch, _ = state[name]
-                _solve_lane_calls(kernels[name], A0, B0, AL, BL, *scratch, n)
+                _solve_lane_calls(kernels[name], *state[name][:4], *state[name][4], n)
             times[name].append((time.process_time() - t) / (n * L) * 1e6)
     base = np.asarray(times["committed"])
     print(f"12x12 solve with 13 right-hand sides, median of {args.repeats} x {args.calls} filter-calls, CPU time "
@@ -331,16 +315,59 @@ def solve_phase(args) -> None:
               f"bit-identical={state[L][5]}  ({_counts(kernels[L])})")
 
 
+@numba.njit
+def _feature_calls(innov, noise, r, H, P, Gp, Rm, sd, Lm, ldR, B, z, ld, Lp, S, L, y, n, which):
+    for _ in range(n):
+        if which == 0:
+            innov(r, H, P, Rm, B, z, ld, Lp, S, L, y)
+        elif which == 1:
+            noise(Gp, 0.7, Rm, sd, Lm, ldR)
+        else:
+            _cholesky(P, Lp)
+
+
+def features_phase(args) -> None:
+    """--phase features (module docstring): per-filter CPU us of each phase at --features, and its
+    lock-step estimate at L lanes (medians of the per-repeat ratios: paired)."""
+    rng, F0, m, d, inputs = np.random.default_rng(0), args.features, 3, 12, {}
+    J = rng.normal(size=(27, 12))
+    P = J.T @ J + np.eye(12)  # a covariance Sigma (12, 12)
+    for F in sorted({F0} | {F0 * L for L in args.lanes}):
+        inputs[F] = (rng.normal(size=(m, F)), rng.normal(size=(m, d, F)), P, rng.normal(size=(m, 6, F)),
+                     *(np.empty(shape) for shape in ((m, m, F), (m, F), (m, m, F), (F,), (m, d, F), (m, F), (F,),
+                                                     (d, d), (m, m, F), (m, m, F), (m, F))))
+        for which in (1, 0, 2):  # the noise model first: it fills R for the innovations
+            _feature_calls(feature_innovations_into, _noise_model, *inputs[F], 1, which)
+    times = {(w, F): [] for w in range(3) for F in inputs}
+    for rep in range(args.repeats):  # every (phase, F) once per repeat, in a new order each
+        for i in np.random.default_rng(rep).permutation(len(times)):
+            w, F = list(times)[i]
+            n = max(1, args.calls * F0 // F)
+            t = time.process_time()
+            _feature_calls(feature_innovations_into, _noise_model, *inputs[F], n, w)
+            times[(w, F)].append((time.process_time() - t) / n * 1e6)
+    t = {key: np.asarray(v) for key, v in times.items()}
+    print(f"phases over features, CPU us per filter ({F0} features), median of {args.repeats}; lock-step at L lanes "
+          f"estimated from one call over {F0} L features (12x12 Cholesky {np.median(t[(2, F0)]):.3f} us, added back per lane)")
+    for w, name in ((0, "feature innovations"), (1, "noise model")):
+        cells = []
+        for L in args.lanes:
+            est = t[(w, F0 * L)] / L + (t[(2, F0)] * (1 - 1 / L) if w == 0 else 0.0)
+            cells.append(f"{L} lanes {np.median(est):6.3f} us ({np.median(t[(w, F0)] / est):4.2f}x)")
+        print(f"  {name:20s} {np.median(t[(w, F0)]):6.3f} us   " + "   ".join(cells))
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--phase", choices=["prediction", "solve"], default="prediction")
+    p.add_argument("--phase", choices=["prediction", "solve", "features"], default="prediction")
     p.add_argument("--lanes", type=int, nargs="+", default=[4, 8, 16])
     p.add_argument("--runtime-lanes", type=int, nargs="+", default=[8, 32, 64])
+    p.add_argument("--features", type=int, default=50, help="--phase features: a frame's (kitti00: 50)")
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--calls", type=int, default=20000, help="filter-calls per timing")
     args = p.parse_args(argv)
-    if args.phase == "solve":
-        return solve_phase(args)
+    if args.phase != "prediction":
+        return solve_phase(args) if args.phase == "solve" else features_phase(args)
     P, Phi, Qd = _inputs(max(args.lanes + args.runtime_lanes))
     reference = P.copy()
     T, U = np.empty((15, 27)), np.empty((15, 15))

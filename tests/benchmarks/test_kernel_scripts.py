@@ -94,6 +94,25 @@ def test_the_solve_in_lock_step_gives_every_lanes_bits_and_packs(load_script, ca
         assert min(packed) > 0, lines
 
 
+def test_the_features_estimate_runs_every_phase_at_every_lane_count(load_script, capsys):
+    """--phase features prints both phases with an estimate per lane count (times are not asserted),
+    and its premise holds: a feature's results do not depend on how many features share the call."""
+    from avio.filter.outliers import feature_innovations
+
+    rng = np.random.default_rng(3)
+    J, H, r = rng.normal(size=(20, 12)), rng.normal(size=(3, 12, 24)), rng.normal(size=(3, 24))
+    P, Rm = J.T @ J + np.eye(12), np.repeat(np.eye(3)[:, :, None], 24, axis=2)
+    alone, together = [(np.empty((3, 12, F)), np.empty((3, F)), np.empty(F)) for F in (8, 24)]
+    feature_innovations(r[:, :8].copy(), H[:, :, :8].copy(), P, Rm[:, :, :8].copy(), *alone)
+    feature_innovations(r, H, P, Rm, *together)
+    assert all(np.array_equal(a, t[..., :8]) for a, t in zip(alone, together))
+    layout = load_script("bench_layout")
+    layout.main(["--phase", "features", "--features", "8", "--lanes", "2", "4", "--repeats", "1", "--calls", "8"])
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if " us " in ln and "lanes" in ln]
+    assert [ln.split()[0] for ln in lines[1:]] == ["feature", "noise"], lines
+    assert all(re.search(r"2 lanes +[\d.]+ us \([\d.]+x\) +4 lanes +[\d.]+ us \([\d.]+x\)", ln) for ln in lines[1:]), lines
+
+
 def test_a_tree_override_without_a_value_is_refused_before_any_work(load_script, capsys):
     ab = load_script("ab_kernel")
     with pytest.raises(SystemExit) as stop:
