@@ -348,7 +348,7 @@ def plan(argv: list[str]) -> SweepPlan:
                                  default=str)
                 if key not in seen:
                     seen.add(key)
-                    check_presentation(cfg)  # first: threads=auto reads NUMBA_NUM_THREADS before numba is imported
+                    check_presentation(cfg)  # first: NUMBA_NUM_THREADS is checked before anything imports numba
                     check_design(cfg)  # the instance and the report's settings, before the problem is built
                     check_job(cfg, truths)
                 result.n_jobs += 1
