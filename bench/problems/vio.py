@@ -1,12 +1,11 @@
 """The dataset-neutral VIO calibration objective: a batch of candidate calibrations, run through
 the filter over one or more calibration drives of one camera, scored by the chosen objective.
 
-A data source is one small module beside this one (``synthetic.py``, ``kitti00.py``,
-``kitti_raw.py``, ``euroc.py``): a frozen parameters dataclass derived from :class:`VioParams`
-(its defaults are the yaml's defaults; it validates itself in one place), whose
-:meth:`VioParams.check_data` makes the cheap data checks the preflight runs before any work and
-whose :meth:`VioParams.build` returns the :class:`Drives`; and a two-line :class:`VioProblem`
-subclass registered under the yaml's name. See docs/guide/adding-a-problem.md.
+A data source is one small module beside this one (``synthetic.py``, ``kitti00.py``, ``kitti_raw.py``,
+``euroc.py``): a frozen parameters dataclass derived from :class:`VioParams` (its defaults are the
+yaml's defaults; it validates itself in one place), whose :meth:`VioParams.check_data` makes the
+cheap data checks the preflight runs before any work and whose :meth:`VioParams.build` returns the
+:class:`Drives`; and a two-line :class:`VioProblem` subclass registered under the yaml's name.
 
 Objectives (``objective=``), all batched and pooled over the calibration drives:
 
@@ -26,16 +25,15 @@ the same features for every calibration, so the objective is smooth and comparab
 The evidence (studies/identifiability/README.md): 4 drives, 7 free, seeds 0-19, innovation_nll's
 median rotation error 0.27 deg with reference_all against 0.50 deg with its own decisions (paired
 Wilcoxon p = 0.009), principal point 2.4 against 4.6 px (p = 0.009). ``position_rmse`` keeps the
-filters' own decisions (the paper's filter).
+filters' own decisions (the paper's filter). Adding a source: docs/guide/adding-a-problem.md.
 
 A filter that diverges gets ``divergence_penalty_m * (2 - k_div / N)`` (in the objective's
 units): finite, worse than any regular value, worse the earlier it diverged.
 
-Beside f, every evaluation reports, uncharged: every objective, the trajectory errors, the
-drift (avio.metrics.drift_metrics: KITTI t_rel/r_rel, per-metre drift, the largest one-frame
-jump), the filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
-reference such as Kalibr) when the source knows one (avio.calibration).
-"""
+Beside f, every evaluation reports, uncharged: every objective, the trajectory errors, the drift
+(avio.metrics.drift_metrics: KITTI t_rel/r_rel, per-metre drift, the largest one-frame jump), the
+filter's NIS per degree of freedom, and the calibration errors against the truth (or a trusted
+reference such as Kalibr) when the source knows one (avio.calibration)."""
 
 from __future__ import annotations
 
@@ -47,7 +45,7 @@ from typing import ClassVar
 import numpy as np
 
 from avio.calibration import Calibration, calibration_errors
-from avio.filter.batch import run
+from avio.filter.batch import run, threads
 from avio.filter.config import FilterConfig, FilterError, FilterResult
 from avio.filter.prepare import prepare
 from avio.metrics import drift_metrics, pose_errors
@@ -298,6 +296,10 @@ class VioProblem:
     def f_unit(self) -> str:
         """The unit of f (records and the leaderboard carry it)."""
         return "m" if self.objective == "position_rmse" else "nats per residual"  # both likelihoods
+
+    @property
+    def filter_threads(self) -> int:  # the threads a batch runs on now: the record's machine.filter_threads
+        return threads()
 
     @property
     def reference_calibration(self) -> Calibration:

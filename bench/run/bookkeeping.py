@@ -85,8 +85,11 @@ def _name(value):
 
 def job_record(identity: dict, job_key: str | None, config_hash_: str, code: dict | None, status: str,
                 error: dict | None, budget, config: dict, problem_fields: dict, outcome: dict) -> dict:
-    """The job's ``record.json``: its keys and identity, how it ended, its problem and what it found."""
-    return {
+    """The job's ``record.json``: its keys and identity, how it ended, its problem and what it found;
+    a problem's ``filter_threads`` goes to ``machine`` (its timings depend on it, its results do not)."""
+    problem_fields = dict(problem_fields)
+    threads = problem_fields.pop("filter_threads", None)
+    record = {
         "schema": SCHEMA,
         "job_key": job_key,
         "config_hash": config_hash_,
@@ -104,6 +107,9 @@ def job_record(identity: dict, job_key: str | None, config_hash_: str, code: dic
         **outcome,
         **provenance(),
     }
+    if threads is not None:  # a copy: provenance() is computed once per process
+        record["machine"] = {**record["machine"], "filter_threads": threads}
+    return record
 
 
 def problem_fields(problem: Problem) -> dict:
@@ -121,6 +127,7 @@ def problem_fields(problem: Problem) -> dict:
         "f_truth": getattr(problem, "f_truth", None),
         "f_reference": getattr(problem, "f_reference", None),
         "problem_identity": problem.identity,
+        **({"filter_threads": problem.filter_threads} if hasattr(problem, "filter_threads") else {}),
     }
 
 

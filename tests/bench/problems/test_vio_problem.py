@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -339,3 +341,21 @@ def test_a_lever_arm_that_buys_updates_in_the_braking_frames_does_not_win_the_li
                         -0.16103359850936627, -0.19824823154862056])
     f, _ = problem.evaluate(np.stack([problem.truth, exploit]))
     assert f[0] < f[1]
+
+
+def test_the_record_names_the_threads_the_filter_ran_on_and_an_analytic_one_none(tmp_path, problem):
+    from avio.filter.batch import set_threads
+    from bench.problems.analytic import sphere as make_sphere
+
+    try:
+        for n in (1, 2):
+            set_threads(n)
+            record = run_job(problem, lambda: RandomSearch(problem.space.lower, problem.space.upper, seed=0),
+                             Budget(evals=2), tmp_path / f"vio{n}", {"threads": n}, progress=False)
+            assert record["status"] == "ok" and record["machine"]["filter_threads"] == min(n, os.cpu_count() or 1)
+    finally:
+        set_threads(None)
+    sphere = make_sphere()
+    record = run_job(sphere, lambda: RandomSearch(sphere.space.lower, sphere.space.upper, seed=0), Budget(evals=2),
+                     tmp_path / "sphere", {"problem": "sphere"}, progress=False)
+    assert "filter_threads" not in record["machine"]
