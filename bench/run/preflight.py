@@ -187,7 +187,8 @@ def check_optimizer(cfg: dict, space: Space) -> None:
 
 def check_job(cfg: dict, truths: TruthWarnings | None = None) -> None:
     """Raise ConfigError if one composed job config is invalid; note in ``truths`` whether its
-    problem's truth lies outside the search bounds (when the problem is built)."""
+    problem's truth lies outside the search bounds (when built). Presentation settings are checked
+    by the caller for every job (``check_presentation``): not in the identity configs are deduped by."""
     _check_finite(cfg, "")
     import_plugins(cfg)
     name = cfg["optimizer"].get("name")
@@ -198,7 +199,6 @@ def check_job(cfg: dict, truths: TruthWarnings | None = None) -> None:
         raise ConfigError(f"problem={pname!r} is not registered; valid names: {', '.join(problems.available())}")
     budget_of(cfg)
     seed_of(cfg)
-    check_presentation(cfg)
     factory = problems.get(pname)
     checker = getattr(factory, "preflight", None)
     checked = None
@@ -344,11 +344,11 @@ def plan(argv: list[str]) -> SweepPlan:
                 hcfg = composer(job_overrides)
                 cfg = job_part(hcfg)
                 instance_of(cfg), seed_of(cfg)  # each configuration checked once below
+                check_presentation(cfg)  # every job: these keys are not in the identity; first: NUMBA_NUM_THREADS
                 key = json.dumps({k: v for k, v in identity_of(cfg).items() if k != "seed"}, sort_keys=True,
                                  default=str)
                 if key not in seen:
                     seen.add(key)
-                    check_presentation(cfg)  # first: NUMBA_NUM_THREADS is checked before anything imports numba
                     check_design(cfg)  # the instance and the report's settings, before the problem is built
                     check_job(cfg, truths)
                 result.n_jobs += 1

@@ -58,6 +58,8 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["threads=0"], "threads must be auto or an integer from 1 to"),
         (["threads=abc"], "threads must be auto or an integer from 1 to"),
         ([f"threads={(os.cpu_count() or 1) + 1}"], f"(this machine's cores), got {(os.cpu_count() or 1) + 1}"),
+        (["threads=1,0"], "threads must be auto or an integer from 1 to"),  # swept: not in the identity
+        (["log_metrics=all,some"], "log_metrics must be one of"),  # every job's, not once per identity
         (["plugins=[.evil]"], "plugins: '.evil' is not an absolute module name"),
         (["plugins=['']"], "plugins: '' is not an absolute module name"),
         (["plugins=[1]"], "plugins: 1 is not an absolute module name"),
