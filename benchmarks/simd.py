@@ -12,9 +12,17 @@ from __future__ import annotations
 
 import numba
 
-from avio.filter._simd import NoAliasCompiler, PackedCompiler, fp_counts, kernel_jit, slp_vectorize
+from avio.filter._simd import _FP, NoAliasCompiler, PackedCompiler, fp_counts, kernel_jit, slp_vectorize
 
-__all__ = ["NoAliasCompiler", "PackedCompiler", "fp_counts", "kernel_jit", "njit_packed", "slp_vectorize"]
+__all__ = ["NoAliasCompiler", "PackedCompiler", "asm_fp_counts", "fp_counts", "kernel_jit", "njit_packed",
+           "slp_vectorize"]
+
+
+def asm_fp_counts(asm: str) -> dict[str, int]:
+    """:func:`fp_counts` of assembly text (a C compiler's, benchmarks/native/bench_native.py): scalar and
+    packed FP64 arithmetic instructions, counted alike."""
+    kinds = [m.group(2) for m in _FP.finditer(asm)]
+    return {"scalar": kinds.count("sd"), "packed": kinds.count("pd")}
 
 
 def njit_packed(func=None, **options):
