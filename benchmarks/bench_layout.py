@@ -26,9 +26,9 @@ factors one): per filter, (the call on F L features) / L + (1 - 1/L) Cholesky ag
     python benchmarks/bench_layout.py --phase solve [--lanes 4 8 16] [--repeats 15]
     python benchmarks/bench_layout.py --phase features [--features 50] [--lanes 4 8] [--repeats 15]
 
-Prints CPU microseconds per filter (median of --repeats; process CPU time) and the medians of the
-per-repeat ratios (each repeat times every variant once, in a new random order: paired). Written
-out here, not in avio: these are the alternatives measured, not the kernel.
+Prints CPU microseconds per filter (median of --repeats; process CPU time; arrays 64-byte aligned:
+simd.aligned) and the medians of the per-repeat ratios (every variant once per repeat, in a new
+random order: paired). Written out here, not in avio: the alternatives measured, not the kernel.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from llvmlite import binding as llvm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from simd import fp_counts, kernel_jit, njit_packed, slp_vectorize
+from simd import aligned, fp_counts, kernel_jit, njit_packed, slp_vectorize
 
 from avio.filter._linalg import solve
 from avio.filter.kernels import propagate_covariance
@@ -151,7 +151,7 @@ def _inputs(n: int, seed: int = 0):
     Phi[:, 6:9, 3:6] = rng.normal(size=(n, 3, 3))  # dv <- dtheta
     Phi[:, 6:9, 9:12] = -0.1  # dv <- db_a
     Phi[:, 3:6, 12:15] = -0.1  # dtheta <- db_g
-    return P, Phi, np.eye(15) * 1e-6
+    return P, Phi, aligned(np.eye(15) * 1e-6)
 
 
 def _candidates(args) -> dict:
@@ -173,10 +173,10 @@ def _prepare(candidates, P, Phi, Qd, reference) -> dict:
                 Ps, T, U = P.copy(), np.empty((15, 27)), np.empty((15, 15))
                 for i in range(L_max):
                     kernel(Ps[i], Phi[i], Qd, T, U)
-                inputs, same = (P[0].copy(), Phi[0], T, U), np.array_equal(Ps, reference)
+                inputs, same = (aligned(P[0]), aligned(Phi[0]), aligned(T), aligned(U)), np.array_equal(Ps, reference)
             else:
-                PL, PhiL = np.ascontiguousarray(P[:L].transpose(1, 2, 0)), np.ascontiguousarray(Phi[:L].transpose(1, 2, 0))
-                TL, UL = np.empty((15, 27, L)), np.empty((15, 15, L))
+                PL, PhiL = aligned(P[:L].transpose(1, 2, 0)), aligned(Phi[:L].transpose(1, 2, 0))
+                TL, UL = aligned(np.zeros((15, 27, L))), aligned(np.zeros((15, 15, L)))
                 out = PL.copy()
                 kernel(out, PhiL, Qd, TL, UL)
                 inputs, same = (PL, PhiL, TL, UL), np.array_equal(out.transpose(2, 0, 1), reference[:L])
@@ -282,15 +282,15 @@ def solve_phase(args) -> None:
     for i in range(len(M)):
         solve(ref_A[i], ref_B[i])
     for L, kernel in kernels.items():
-        A0, B0 = np.ascontiguousarray(M[:L].transpose(1, 2, 0)), np.ascontiguousarray(X[:L].transpose(1, 2, 0))
-        scratch = (np.empty(L, np.int64), np.empty(L), np.empty(L), np.empty(L), np.empty((12, L)), np.empty((13, L)))
-        A, B = A0.copy(), B0.copy()
+        A0, B0 = aligned(M[:L].transpose(1, 2, 0)), aligned(X[:L].transpose(1, 2, 0))
+        scratch = (np.zeros(L, np.int64), *(aligned(np.zeros(shape)) for shape in (L, L, L, (12, L), (13, L))))
+        A, B = aligned(A0), aligned(B0)
         with slp_vectorize(True):
             _solve_lane_calls(kernel, A0, B0, A, B, *scratch, 1)
         same = np.array_equal(A.transpose(2, 0, 1), ref_A[:L]) and np.array_equal(B.transpose(2, 0, 1), ref_B[:L])
         state[L] = (A0, B0, A, B, scratch, same)
     committed_solve = kernel_jit(solve.py_func, cache=False)  # the kernel's compile, uncached: its assembly can be read
-    A, B = M[0].copy(), X[0].copy()
+    A, B = aligned(M[0]), aligned(X[0])
     with slp_vectorize(True):
         _solve_calls(committed_solve, M[0], X[0], A, B, 1)
     times, rng = {"committed": [], **{L: [] for L in Ls}}, np.random.default_rng(0)
@@ -333,9 +333,9 @@ def features_phase(args) -> None:
     J = rng.normal(size=(27, 12))
     P = J.T @ J + np.eye(12)  # a covariance Sigma (12, 12)
     for F in sorted({F0} | {F0 * L for L in args.lanes}):
-        inputs[F] = (rng.normal(size=(m, F)), rng.normal(size=(m, d, F)), P, rng.normal(size=(m, 6, F)),
-                     *(np.empty(shape) for shape in ((m, m, F), (m, F), (m, m, F), (F,), (m, d, F), (m, F), (F,),
-                                                     (d, d), (m, m, F), (m, m, F), (m, F))))
+        shapes = ((m, m, F), (m, F), (m, m, F), (F,), (m, d, F), (m, F), (F,), (d, d), (m, m, F), (m, m, F), (m, F))
+        r, H, G = rng.normal(size=(m, F)), rng.normal(size=(m, d, F)), rng.normal(size=(m, 6, F))
+        inputs[F] = tuple(map(aligned, (r, H, P, G, *map(np.zeros, shapes))))
         for which in (1, 0, 2):  # the noise model first: it fills R for the innovations
             _feature_calls(feature_innovations_into, _noise_model, *inputs[F], 1, which)
     times = {(w, F): [] for w in range(3) for F in inputs}
@@ -381,7 +381,7 @@ def main(argv=None) -> None:
         for name in rng.permutation(list(candidates)):
             kernel, L, _ = candidates[name]
             (P0, Phi0, T0, U0), _ = state[name]
-            work = P0.copy()
+            work = aligned(P0)
             n = max(1, args.calls // L)
             t = time.process_time()
             _calls(kernel, work, Phi0, Qd, T0, U0, n)

@@ -11,11 +11,23 @@ with both.
 from __future__ import annotations
 
 import numba
+import numpy as np
 
 from avio.filter._simd import _FP, NoAliasCompiler, PackedCompiler, fp_counts, kernel_jit, slp_vectorize
 
-__all__ = ["NoAliasCompiler", "PackedCompiler", "asm_fp_counts", "fp_counts", "kernel_jit", "njit_packed",
+__all__ = ["NoAliasCompiler", "PackedCompiler", "aligned", "asm_fp_counts", "fp_counts", "kernel_jit", "njit_packed",
            "slp_vectorize"]
+
+
+def aligned(a: np.ndarray) -> np.ndarray:
+    """A C-contiguous copy of ``a`` starting on a 64-byte boundary (a cache line). The benchmarks time
+    every variant on aligned arrays: a lane loop's vector loads on arrays as the allocator left them
+    changed a variant's speed by up to 2x from one allocation to the next (benchmarks/README.md)."""
+    raw = np.empty(a.nbytes + 64, np.uint8)
+    start = -raw.ctypes.data % 64
+    out = raw[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
 
 
 def asm_fp_counts(asm: str) -> dict[str, int]:

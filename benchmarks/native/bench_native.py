@@ -40,8 +40,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 sys.path.insert(0, str(HERE.parent))
 
-from bench_layout import _inputs, _systems
-from simd import asm_fp_counts, fp_counts, kernel_jit, slp_vectorize
+from bench_layout import _calls as _layout_calls
+from bench_layout import _inputs, _solve_lane_calls, _systems, lanes_kernel, solve_lanes_kernel
+from simd import aligned, asm_fp_counts, fp_counts, kernel_jit, slp_vectorize
 
 from avio.filter._linalg import solve
 from avio.filter.kernels import propagate_covariance
@@ -108,16 +109,6 @@ def c_counts(asm: str, function: str) -> dict[str, int]:
     text = "\n".join(line for key, lines in bodies.items() if key == function or key.startswith(f"{function}.")
                      for line in lines)
     return asm_fp_counts(text)
-
-
-def aligned(a: np.ndarray) -> np.ndarray:
-    """A C-contiguous copy of ``a`` starting on a 64-byte boundary (a cache line: every variant's vector
-    loads start alike, whatever the allocator returned)."""
-    raw = np.empty(a.nbytes + 64, np.uint8)
-    start = -raw.ctypes.data % 64
-    out = raw[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
-    out[...] = a
-    return out
 
 
 def _lanes(a: np.ndarray, L: int) -> np.ndarray:
@@ -204,17 +195,44 @@ class Phase:
                 _numba_calls(self.kernel, n, fresh, *arrays)
 
     def variants(self) -> list[tuple[str, int]]:
-        return [("numba", 1), ("C", 1), *((f"C lanes {L}", L) for L in self.lanes)]
+        """(name, lanes): numba per filter, numba lanes (benchmarks/bench_layout.py's, where it has them), C per
+        filter, C lanes."""
+        numba_lanes = self.lanes if self.phase in ("prediction", "solve") else []
+        return [("numba", 1), *((f"numba lanes {L}", L) for L in numba_lanes), ("C", 1),
+                *((f"C lanes {L}", L) for L in self.lanes)]
+
+    def _numba_lanes(self, L: int):
+        """bench_layout.py's lock-step variant of the phase, compiled with both switches, on aligned lanes-last
+        arrays: (run(n), same bits, the dispatcher)."""
+        with slp_vectorize(True):
+            if self.phase == "prediction":
+                kernel = lanes_kernel(L, packed=True)
+                P, Phi = _lanes(self.args["P"], L), _lanes(self.args["Phi"], L)
+                args = (P, Phi, aligned(self.args["Qd"]), aligned(np.zeros((15, 27, L))), aligned(np.zeros((15, 15, L))))
+                _layout_calls(kernel, *args, 1)
+                same = np.array_equal(np.moveaxis(P, -1, 0), np.asarray(self.reference["P"][:L]))
+                P[...] = _lanes(self.args["P"], L)
+                return (lambda n: _layout_calls(kernel, *args, n)), same, kernel
+            kernel = solve_lanes_kernel(L)
+            A0, B0 = _lanes(self.args["A"], L), _lanes(self.args["B"], L)
+            args = (A0, B0, A0.copy(), B0.copy(), np.zeros(L, np.int64), *(aligned(np.zeros(L)) for _ in range(3)),
+                    aligned(np.zeros((12, L))), aligned(np.zeros((13, L))))
+            _solve_lane_calls(kernel, *args, 1)
+        same = all(np.array_equal(np.moveaxis(args[2 + i], -1, 0), np.asarray(self.reference[k][:L]))
+                   for i, k in enumerate(("A", "B")))
+        return (lambda n: _solve_lane_calls(kernel, *args, n)), same, kernel
 
     def prepare(self, lib, variant: str, L: int):
         """(run(n): time n filter-calls, same bits after one call) for one variant, its arrays made once."""
         prefix = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}[self.phase]
+        if variant == "numba lanes":
+            return self._numba_lanes(L)[:2]
         if variant == "numba":
             args = self._filter(0)
             fresh = tuple(a.copy() for a in args.values())
             self._numba(args, 1, fresh)
             return (lambda n: self._numba(args, n, fresh)), True
-        lanes = variant != "C"
+        lanes = variant == "C lanes"
         if lanes:
             args = {k: aligned(v) if k in self.shared else _lanes(v, L) for k, v in self.args.items()}
         else:
@@ -243,8 +261,8 @@ def measure(phase: Phase, lib, asm: str, repeats: int, calls: int, seed: int = 0
     of every variant of the phase."""
     prefix = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}[phase.phase]
     variants = phase.variants()
-    runs = {name: phase.prepare(lib, "numba" if name == "numba" else "C" if name == "C" else "lanes", L)
-            for name, L in variants}
+    kinds = {name: name if name in ("numba", "C") else name.rsplit(" ", 1)[0] for name, _ in variants}
+    runs = {name: phase.prepare(lib, kinds[name], L) for name, L in variants}
     times = {name: [] for name, _ in variants}
     rng = np.random.default_rng(seed)
     for _ in range(repeats):  # paired: every variant once per repeat, in a new order each
@@ -255,7 +273,8 @@ def measure(phase: Phase, lib, asm: str, repeats: int, calls: int, seed: int = 0
             runs[name][0](n)
             times[name].append((time.process_time() - t) / (n * L))
     base = np.asarray(times["numba"])
-    counts = {name: fp_counts(phase.kernel) if name == "numba" else
+    counts = {name: fp_counts(phase.kernel) if name == "numba" else fp_counts(phase._numba_lanes(L)[2])
+              if kinds[name] == "numba lanes" else
               c_counts(asm, f"{prefix}_calls" if name == "C" else f"{prefix}_lanes_calls_{L}") for name, L in variants}
     return [(name, 1e6 * float(np.median(times[name])), float(np.median(base / np.asarray(times[name]))),
              runs[name][1], counts[name]) for name, _ in variants]
@@ -278,7 +297,7 @@ def main(argv=None) -> None:
             print(f"{name}:")
             phase = Phase(name, sorted(set(args.lanes)), args.features)
             for variant, us, ratio, same, counts in measure(phase, lib, asm, args.repeats, args.calls):
-                print(f"  {variant:12s} {us:7.3f} us/filter  {ratio:5.2f}x  bit-identical={same}  "
+                print(f"  {variant:13s} {us:7.3f} us/filter  {ratio:5.2f}x  bit-identical={same}  "
                       f"({counts['scalar']:4d} scalar / {counts['packed']:4d} packed FP64)", flush=True)
 
 

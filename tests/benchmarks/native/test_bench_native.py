@@ -12,6 +12,7 @@ import shutil
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[3]
@@ -31,16 +32,27 @@ def test_every_c_variant_gives_the_kernels_bits_and_the_lanes_pack(load_script, 
             phase = line[:-1]
         elif "us/filter" in line:
             rows[phase, line.split(" us/filter")[0].rsplit(None, 1)[0].strip()] = line
-    lanes = ["numba", "C", "C lanes 4", "C lanes 8"]
-    assert [name for p, name in rows if p == "prediction"] == lanes
-    assert [name for p, name in rows if p == "gain"] == lanes
-    assert [name for p, name in rows if p == "solve"] == lanes
+    numba_lanes = ["numba", "numba lanes 4", "numba lanes 8", "C", "C lanes 4", "C lanes 8"]
+    assert [name for p, name in rows if p == "prediction"] == numba_lanes
+    assert [name for p, name in rows if p == "gain"] == ["numba", "C", "C lanes 4", "C lanes 8"]
+    assert [name for p, name in rows if p == "solve"] == numba_lanes
     assert [name for p, name in rows if p == "innovations"] == ["numba", "C"]
     assert all("bit-identical=True" in line for line in rows.values()), out
     counts = {key: [int(w) for w in re.findall(r"(\d+) (?:scalar|packed)", line)] for key, line in rows.items()}
     assert all(sum(c) > 0 for c in counts.values()), counts  # each variant's code was found in the assembly
     for p in ("prediction", "gain", "solve"):
         assert counts[p, "C lanes 8"][1] > 0, counts  # the lanes are packed
+    from llvmlite import binding as llvm
+
+    if llvm.get_host_cpu_features().get("avx", False):  # as bench_layout.py's own test
+        assert counts["prediction", "numba lanes 8"][0] == 0, counts
+
+
+def test_aligned_copies_start_on_a_cache_line_and_keep_the_values(load_script):
+    native = load_script("bench_native")
+    a = np.arange(24.0).reshape(2, 3, 4)[:, :, ::2]  # not contiguous
+    out = native.aligned(a)
+    assert out.ctypes.data % 64 == 0 and out.flags.c_contiguous and np.array_equal(out, a)
 
 
 def test_the_numba_copy_of_the_gain_and_downdate_is_the_kernels_code(load_script):
