@@ -50,6 +50,7 @@ from avio.filter.outliers import feature_innovations_into
 
 FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-shared", "-fPIC")
 PHASES = ("prediction", "gain", "solve", "innovations")
+_PREFIX = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}  # in layout.c
 
 
 def gain_downdate(Pi, PCt, X, CP, K):
@@ -222,16 +223,18 @@ class Phase:
                    for i, k in enumerate(("A", "B")))
         return (lambda n: _solve_lane_calls(kernel, *args, n)), same, kernel
 
-    def prepare(self, lib, variant: str, L: int):
-        """(run(n): time n filter-calls, same bits after one call) for one variant, its arrays made once."""
-        prefix = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}[self.phase]
+    def prepare(self, lib, asm: str, variant: str, L: int):
+        """(run(n): time n filter-calls, same bits after one call, FP64 counts) for one variant, its arrays
+        made once."""
+        prefix = _PREFIX[self.phase]
         if variant == "numba lanes":
-            return self._numba_lanes(L)[:2]
+            run, same, kernel = self._numba_lanes(L)
+            return run, same, fp_counts(kernel)
         if variant == "numba":
             args = self._filter(0)
             fresh = tuple(a.copy() for a in args.values())
             self._numba(args, 1, fresh)
-            return (lambda n: self._numba(args, n, fresh)), True
+            return (lambda n: self._numba(args, n, fresh)), True, fp_counts(self.kernel)
         lanes = variant == "C lanes"
         if lanes:
             args = {k: aligned(v) if k in self.shared else _lanes(v, L) for k, v in self.args.items()}
@@ -253,16 +256,15 @@ class Phase:
                    for k in self.outputs)
         for k, a in args.items():
             a[...] = fresh[k]
-        return (lambda n: fn(*ptrs, ctypes.c_long(n))), same
+        return (lambda n: fn(*ptrs, ctypes.c_long(n))), same, c_counts(asm, fn.__name__)
 
 
 def measure(phase: Phase, lib, asm: str, repeats: int, calls: int, seed: int = 0):
     """(variant, median CPU us per filter, median paired ratio against numba, same bits, FP64 counts)
     of every variant of the phase."""
-    prefix = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}[phase.phase]
     variants = phase.variants()
     kinds = {name: name if name in ("numba", "C") else name.rsplit(" ", 1)[0] for name, _ in variants}
-    runs = {name: phase.prepare(lib, kinds[name], L) for name, L in variants}
+    runs = {name: phase.prepare(lib, asm, kinds[name], L) for name, L in variants}
     times = {name: [] for name, _ in variants}
     rng = np.random.default_rng(seed)
     for _ in range(repeats):  # paired: every variant once per repeat, in a new order each
@@ -273,11 +275,8 @@ def measure(phase: Phase, lib, asm: str, repeats: int, calls: int, seed: int = 0
             runs[name][0](n)
             times[name].append((time.process_time() - t) / (n * L))
     base = np.asarray(times["numba"])
-    counts = {name: fp_counts(phase.kernel) if name == "numba" else fp_counts(phase._numba_lanes(L)[2])
-              if kinds[name] == "numba lanes" else
-              c_counts(asm, f"{prefix}_calls" if name == "C" else f"{prefix}_lanes_calls_{L}") for name, L in variants}
     return [(name, 1e6 * float(np.median(times[name])), float(np.median(base / np.asarray(times[name]))),
-             runs[name][1], counts[name]) for name, _ in variants]
+             runs[name][1], runs[name][2]) for name, _ in variants]
 
 
 def main(argv=None) -> None:
