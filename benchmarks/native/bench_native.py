@@ -15,14 +15,15 @@ packed FP64 instructions counted in the compiler's assembly (numba's: benchmarks
     python benchmarks/native/bench_native.py [--phase prediction gain solve] [--lanes 4 8] [--repeats 15]
 
 ``prediction``: P <- F P F^T + Q (avio.filter.kernels.propagate_covariance); ``gain``: K = P C^T X and
-the downdate P -= K C P (the end of avio.filter.update.update, copied below: its lines are checked against
-the kernel's by tests/benchmarks/native/); ``solve``: the 12x12 solve with 13 right-hand sides
+the downdate P -= K C P (the end of avio.filter.update.update, its two loops taken from the kernel's
+source); ``solve``: the 12x12 solve with 13 right-hand sides
 (avio.filter._linalg.solve), a pivot per lane, on systems whose lanes pivot differently.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import ctypes
 import os
 import re
@@ -30,6 +31,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -44,6 +46,7 @@ from bench_layout import _calls as _layout_calls
 from bench_layout import _inputs, _solve_lane_calls, _systems, lanes_kernel, solve_lanes_kernel
 from simd import aligned, asm_fp_counts, fp_counts, kernel_jit, slp_vectorize
 
+from avio.filter import update as update_module
 from avio.filter._linalg import solve
 from avio.filter.kernels import propagate_covariance
 from avio.filter.outliers import feature_innovations_into
@@ -53,26 +56,20 @@ PHASES = ("prediction", "gain", "solve", "innovations")
 _PREFIX = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}  # in layout.c
 
 
-def gain_downdate(Pi, PCt, X, CP, K):
-    """The update's gain and downdate (avio/filter/update.py, Eq. 42), line for line: K = PCt X[:, :12],
-    then P -= K CP over the lower triangle (rows rounded up to 8 entries), mirrored."""
-    d = 12
-    for a in range(27):
-        for b in range(d):
-            K[a, b] = 0.0
-        for c in range(d):
-            f = PCt[a, c]
-            for b in range(d):
-                K[a, b] += f * X[c, b]
-    for a in range(27):
-        n = min(27, (a // 8 + 1) * 8)
-        for c in range(n):
-            acc = Pi[a, c]
-            for b in range(12):
-                acc -= K[a, b] * CP[b, c]
-            Pi[a, c] = acc
-        for c in range(a):
-            Pi[c, a] = Pi[a, c]
+def kernel_gain_downdate(source: str | None = None):
+    """The kernel's gain and downdate (Eq. 42) as a Python function of (Pi, PCt, X, CP, K): the two loops of
+    avio.filter.update.update that write K[a, b], taken from its source (``source``: that module's text), so
+    the phase timed is the kernel's own code, not a copy. SystemExit when the kernel no longer has them."""
+    tree = ast.parse(source if source is not None else Path(update_module.__file__).read_text())
+    body = next((n.body for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "update"), [])
+    loops = [n for n in body if isinstance(n, ast.For) and "K[a, b]" in ast.unparse(n)]
+    if len(loops) != 2:
+        raise SystemExit(f"bench_native.py: avio/filter/update.py's update() has {len(loops)} loops writing "
+                         "K[a, b], not the gain's and the downdate's two: update the phase 'gain' here")
+    code = "def gain_downdate(Pi, PCt, X, CP, K):\n    d = 12\n" + textwrap.indent("\n".join(map(ast.unparse, loops)), "    ")
+    namespace: dict = {}
+    exec(compile(code, "<avio.filter.update.update: gain and downdate>", "exec"), namespace)
+    return namespace["gain_downdate"]
 
 
 def compiler() -> str:
@@ -145,7 +142,7 @@ class Phase:
     def __init__(self, phase: str, lanes: list[int], features: int):
         self.phase, self.lanes = phase, lanes
         n, rng = max(lanes), np.random.default_rng(1)
-        fn = {"prediction": propagate_covariance.py_func, "gain": gain_downdate, "solve": solve.py_func,
+        fn = {"prediction": propagate_covariance.py_func, "gain": kernel_gain_downdate(), "solve": solve.py_func,
               "innovations": feature_innovations_into.py_func}[phase]
         with slp_vectorize(True):
             self.kernel = kernel_jit(fn, cache=False)  # the kernel's compile, uncached: its assembly can be read
