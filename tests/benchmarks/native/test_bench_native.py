@@ -71,3 +71,49 @@ def test_a_missing_compiler_is_one_message_naming_it(load_script, monkeypatch):
     monkeypatch.setenv("CC", "no-such-cc")
     with pytest.raises(SystemExit, match="needs a C compiler: 'no-such-cc' is not on PATH"):
         native.main(["--repeats", "1", "--calls", "1"])
+
+
+_CALLER = '''
+import ctypes, sys
+import numba, numpy as np
+lib = ctypes.CDLL(sys.argv[1])
+axpy = lib.axpy
+axpy.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_long]
+axpy.restype = None
+
+@numba.njit(cache=True)
+def by_argument(fn, y, x):
+    fn(y.ctypes.data, x.ctypes.data, 2.0, y.size)
+
+@numba.njit(cache=True)
+def by_global(y, x):
+    axpy(y.ctypes.data, x.ctypes.data, 2.0, y.size)
+
+y = np.zeros(3)
+by_argument(axpy, y, np.ones(3))
+by_global(y, np.ones(3))
+print(y.tolist())
+'''
+
+
+@needs_cc
+def test_numba_caches_a_kernel_given_a_c_function_as_an_argument_not_as_a_global(tmp_path):
+    """docs/decisions.md's route for C lanes in the kernel: the compiled frame loop calls C functions passed
+    to it; numba (as pinned) caches such a caller and loads it in a new process, but refuses to cache one
+    that calls the C function as a global (the kernel must stay cached: its first compile is ~1 min)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "f.c").write_text("void axpy(double *y, const double *x, double a, long n) "
+                                  "{ for (long i = 0; i < n; i++) y[i] += a * x[i]; }\n")
+    lib = tmp_path / "libf.so"
+    subprocess.run([os.environ.get("CC", "cc"), "-O2", "-shared", "-fPIC", "-o", str(lib), str(tmp_path / "f.c")],
+                   check=True)
+    (tmp_path / "caller.py").write_text(_CALLER)
+    env = {**os.environ, "NUMBA_DEBUG_CACHE": "1", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [subprocess.run([sys.executable, str(tmp_path / "caller.py"), str(lib)], capture_output=True, text=True,
+                           env=env, cwd=tmp_path, check=True) for _ in range(2)]
+    assert all(run.stdout.strip().endswith("[4.0, 4.0, 4.0]") for run in runs)
+    assert "Cannot cache compiled function \"by_global\"" in runs[0].stderr
+    second = runs[1].stdout + runs[1].stderr
+    assert re.search(r"data loaded from .*by_argument", second) and not re.search(r"data loaded from .*by_global", second)
