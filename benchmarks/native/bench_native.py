@@ -1,23 +1,28 @@
 """Does a compiled C kernel pay where numba's lock-step lanes did not, per filter or in lock-step? Issue
 30 leaves the route of a lock-step kernel open, "numba with non-aliasing arguments and SLP, or a compiled
 C/C++ kernel, chosen by a fair side-by-side measurement"; benchmarks/bench_layout.py measures the numba
-side. Here three phases of the update frame (benchmarks/native/layout.c) run as
+side. Here the phases of the update frame (benchmarks/native/covariance.c and update.c) run as
 
 - ``numba``: the kernel's own code and compile (non-aliasing arguments, SLP; avio/filter/_simd.py);
+- ``numba lanes L``: bench_layout.py's L filters in lock-step, where it has them;
 - ``C``: the same operations per filter in C;
 - ``C lanes L``: L filters in lock-step in C (every array lanes-last, the lane loop innermost, ``restrict``),
 
-compiled by the system's C compiler (``$CC``, else ``cc``) with ``-O3 -march=native -ffp-contract=off``
-and no fast-math, so every variant must give the kernel's bits (checked). Timed side by side: CPU time
-per filter, every variant once per repeat in a new random order, ratios paired per repeat; scalar and
-packed FP64 instructions counted in the compiler's assembly (numba's: benchmarks/simd.py: fp_counts).
+compiled by the system's C compiler (``$CC``, else ``cc``) with ``-O3 -march=native -ffp-contract=off
+-fno-trapping-math`` and no fast-math, so every variant must give the kernel's bits (checked). Timed side by side: CPU time
+per filter, every variant once per repeat in a new random order, ratios paired per repeat, every array
+64-byte aligned; scalar and packed FP64 instructions counted in the compiler's assembly (numba's:
+benchmarks/simd.py: fp_counts).
 
-    python benchmarks/native/bench_native.py [--phase prediction gain solve] [--lanes 4 8] [--repeats 15]
+    python benchmarks/native/bench_native.py [--phase prediction project ...] [--lanes 4 8] [--repeats 15]
 
-``prediction``: P <- F P F^T + Q (avio.filter.kernels.propagate_covariance); ``gain``: K = P C^T X and
-the downdate P -= K C P (the end of avio.filter.update.update, its two loops taken from the kernel's
-source); ``solve``: the 12x12 solve with 13 right-hand sides
-(avio.filter._linalg.solve), a pivot per lane, on systems whose lanes pivot differently.
+``prediction``: P <- F P F^T + Q (avio.filter.kernels.propagate_covariance); ``project``: C P, P C^T and
+Sigma = C P C^T (avio.filter.update.update), C with the zeros of the kernel's own measurement chain;
+``information``: the information sum over a frame's inliers (update), a third of the features inliers, in
+each lane others; ``gain``: K = P C^T X and the downdate P -= K C P (update); ``solve``: the 12x12 solve
+with 13 right-hand sides (avio.filter._linalg.solve), a pivot per lane, on systems whose lanes pivot
+differently; ``innovations``: the feature innovations (avio.filter.outliers). The phases of update() are
+taken from the kernel's source (:func:`kernel_phase`), so the code timed is the kernel's own.
 """
 
 from __future__ import annotations
@@ -46,30 +51,52 @@ from bench_layout import _calls as _layout_calls
 from bench_layout import _inputs, _solve_lane_calls, _systems, lanes_kernel, solve_lanes_kernel
 from simd import aligned, asm_fp_counts, fp_counts, kernel_jit, slp_vectorize
 
+from avio.filter import measurement
 from avio.filter import update as update_module
-from avio.filter._linalg import solve
+from avio.filter._linalg import matmul, solve
 from avio.filter.kernels import propagate_covariance
 from avio.filter.outliers import feature_innovations_into
+from avio.geometry import so3_exp
 
-FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-shared", "-fPIC")
-PHASES = ("prediction", "gain", "solve", "innovations")
-_PREFIX = {"prediction": "pred", "gain": "gain", "solve": "solve", "innovations": "innov"}  # in layout.c
+#: -fno-trapping-math: no FP exception is ever read, as LLVM (numba) assumes by default; without it gcc will not
+#: turn a lane's select into a blend. Neither it nor the others change a result's bits (no contraction into FMA,
+#: no reassociation: the tests compare every variant's bits with the kernel's).
+FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-fno-trapping-math", "-shared", "-fPIC")
+PHASES = ("prediction", "project", "information", "gain", "solve", "innovations")
+_PREFIX = {"prediction": "pred", "project": "proj", "information": "info", "gain": "gain", "solve": "solve",
+           "innovations": "innov"}  # the phases' names in the C sources
+SOURCES = ("covariance.c", "update.c")
+#: update()'s statements of each phase: (parameters, the first statement's start, the last one's text, what the
+#: phase's function returns).
+UPDATE_PHASES = {
+    "project": ("C, Pi, CP, PCt, Sig", "matmul(C, Pi, CP)", "0.5 * (Sig[a, b] + Sig[b, a])", ""),
+    "information": ("A, beta, X, rw, Jw, jw_f, inl, ldR, record, decided", "A[:] = 0.0", "X[b, d] = beta[b]",
+                    "used, rr, log_det_R"),
+    "gain": ("Pi, PCt, X, CP, K", "for a in range(27):\n    for b in range(d):\n        K[a, b] = 0.0",
+             "acc -= K[a, b] * CP[b, c]", ""),
+}
 
 
-def kernel_gain_downdate(source: str | None = None):
-    """The kernel's gain and downdate (Eq. 42) as a Python function of (Pi, PCt, X, CP, K): the two loops of
-    avio.filter.update.update that write K[a, b], taken from its source (``source``: that module's text), so
-    the phase timed is the kernel's own code, not a copy. SystemExit when the kernel no longer has them."""
+def kernel_phase(name: str, source: str | None = None):
+    """Phase ``name`` of avio.filter.update.update (UPDATE_PHASES) as a Python function: its statements,
+    from the first that starts with the phase's first text to the next that holds its last, taken from the
+    kernel's source (``source``: that module's text) with d = 12, M = 3, F the features and the kernel's
+    helpers in scope. SystemExit when the kernel no longer has them."""
+    params, first, last, returns = UPDATE_PHASES[name]
     tree = ast.parse(source if source is not None else Path(update_module.__file__).read_text())
     body = next((n.body for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "update"), [])
-    loops = [n for n in body if isinstance(n, ast.For) and "K[a, b]" in ast.unparse(n)]
-    if len(loops) != 2:
-        raise SystemExit(f"bench_native.py: avio/filter/update.py's update() has {len(loops)} loops writing "
-                         "K[a, b], not the gain's and the downdate's two: update the phase 'gain' here")
-    code = "def gain_downdate(Pi, PCt, X, CP, K):\n    d = 12\n" + textwrap.indent("\n".join(map(ast.unparse, loops)), "    ")
-    namespace: dict = {}
-    exec(compile(code, "<avio.filter.update.update: gain and downdate>", "exec"), namespace)
-    return namespace["gain_downdate"]
+    code = [ast.unparse(n) for n in body]
+    start = next((i for i, c in enumerate(code) if c.startswith(first)), None)
+    end = None if start is None else next((i for i in range(start, len(code)) if last in code[i]), None)
+    if end is None:
+        raise SystemExit(f"bench_native.py: avio/filter/update.py's update() no longer has the phase {name!r} (from "
+                         f"{first.splitlines()[0]!r} to {last!r}): update UPDATE_PHASES here")
+    lines = ["d, M = 12, 3", "F = inl.shape[0]" if "inl" in params else "", *code[start:end + 1],
+             f"return {returns}" if returns else ""]
+    text = f"def {name}({params}):\n" + textwrap.indent("\n".join(line for line in lines if line), "    ")
+    namespace = {"matmul": matmul}
+    exec(compile(text, f"<avio.filter.update.update: {name}>", "exec"), namespace)
+    return namespace[name]
 
 
 def compiler() -> str:
@@ -81,15 +108,16 @@ def compiler() -> str:
 
 
 def build(out_dir: Path) -> tuple[ctypes.CDLL, str]:
-    """layout.c compiled into out_dir: the loaded library and the compiler's assembly."""
+    """The C sources compiled into out_dir: the loaded library and the compiler's assembly."""
     cc = compiler()
-    lib = out_dir / "layout.so"
-    for command in ([cc, *FLAGS, "-o", str(lib), str(HERE / "layout.c"), "-lm"],
-                    [cc, *FLAGS[:-2], "-S", "-o", str(out_dir / "layout.s"), str(HERE / "layout.c")]):
+    lib, sources = out_dir / "native.so", [str(HERE / name) for name in SOURCES]
+    commands = [[cc, *FLAGS, "-o", str(lib), *sources, "-lm"],
+                *([cc, *FLAGS[:-2], "-S", "-o", str(out_dir / f"{Path(src).stem}.s"), src] for src in sources)]
+    for command in commands:
         done = subprocess.run(command, capture_output=True, text=True)
         if done.returncode:
             raise SystemExit(f"bench_native.py: {' '.join(command)} failed:\n{done.stderr}")
-    asm = (out_dir / "layout.s").read_text()
+    asm = "".join((out_dir / f"{Path(src).stem}.s").read_text() for src in sources)
     return ctypes.CDLL(str(lib)), asm
 
 
@@ -115,9 +143,9 @@ def _lanes(a: np.ndarray, L: int) -> np.ndarray:
 
 
 @numba.njit
-def _numba_calls(kernel, n, fresh, a, b, c, d, e):
+def _numba_calls(kernel, n, fresh, *args):
     for _ in range(n):
-        kernel(a, b, c, d, e)
+        kernel(*args)
 
 
 @numba.njit
@@ -129,9 +157,61 @@ def _numba_solve_calls(kernel, n, fresh, A, B):
 
 
 @numba.njit
-def _numba_innov_calls(kernel, n, fresh, r, H, P, Rm, B, z, ld, Lp, S, L, y):
+def _numba_info_calls(kernel, n, fresh, A, beta, X, rw, Jw, jw_f, inl, ldR, stats):
+    decided = np.zeros(inl.shape[0], np.uint8)
     for _ in range(n):
-        kernel(r, H, P, Rm, B, z, ld, Lp, S, L, y)
+        used, rr, log_det_R = kernel(A, beta, X, rw, Jw, jw_f, inl, ldR, False, decided)
+    stats[0], stats[1], stats[2] = used, rr, log_det_R
+
+
+def _measurement_chains(n: int, rng) -> np.ndarray:
+    """n maps C (12, 27) from the kernel's own measurement chain (avio.filter.measurement.measure) at
+    poses along a drive: the zeros of Eq. 24's structure, the values of each filter its own."""
+    ws, F = measurement.measure_workspace(), 8
+    out = np.zeros((n, 12, 27))
+    r, J, Gp, t12, t13 = np.zeros((4, F)), np.zeros((4, 12, F)), np.zeros((4, 6, F)), np.zeros(3), np.zeros(3)
+    Rci = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # camera z forward, x right
+    for i in range(n):
+        R, cR0, cR1 = (so3_exp(rng.normal(0, 0.05, 3)) for _ in range(3))
+        uv = rng.uniform(100, 600, (F, 3, 2))
+        measurement.measure(R, np.array([2.0, 0, 0]), np.array([10.0, 0, 0]), np.zeros(3), cR0, np.array([1.0, 0, 0]), cR1,
+                            rng.normal(0, 0.01, 3), 0.0, 718.0 + rng.normal(), 718.0, 607.0, 185.0, Rci,
+                            rng.normal(0, 0.1, 3), uv, r, J, Gp, out[i], t12, t13, ws, False)
+    return out
+
+
+def _phase_inputs(phase: str, n: int, features: int, rng) -> tuple[dict, set, list]:
+    """(args, shared, outputs) of n filters: name -> (n, ...) array in the numba kernel's argument order (or
+    one array all filters share, named in shared), and the names of the outputs."""
+    if phase == "prediction":
+        P, Phi, Qd = _inputs(n)
+        return {"P": P, "Phi": Phi, "Qd": Qd, "T": np.zeros((n, 15, 27)), "U": np.zeros((n, 15, 15))}, {"Qd"}, ["P"]
+    if phase == "project":
+        A = rng.normal(size=(n, 27, 27))
+        args = {"C": _measurement_chains(n, rng), "P": A @ A.transpose(0, 2, 1) * 1e-3, "CP": np.zeros((n, 12, 27)),
+                "PCt": np.zeros((n, 27, 12)), "Sig": np.zeros((n, 12, 12))}
+        return args, set(), ["CP", "PCt", "Sig"]
+    if phase == "information":
+        F = features
+        args = {"A": np.zeros((n, 12, 12)), "beta": np.zeros((n, 12)), "X": np.zeros((n, 12, 13)),
+                "rw": rng.normal(size=(n, 3, F)), "Jw": rng.normal(size=(n, 3, 12, F)), "jw_f": np.zeros((n, 3, 12)),
+                "inl": rng.random((n, F)) < 1 / 3, "ldR": rng.normal(size=(n, F)), "stats": np.zeros((n, 3))}
+        return args, set(), ["A", "X", "stats"]
+    if phase == "gain":
+        P = rng.normal(size=(n, 27, 27))
+        return ({"P": P + P.transpose(0, 2, 1), "PCt": rng.normal(size=(n, 27, 12)), "X": rng.normal(size=(n, 12, 13)),
+                 "CP": 0.01 * rng.normal(size=(n, 12, 27)), "K": np.zeros((n, 27, 12))}, set(), ["P"])
+    if phase == "solve":
+        A, B = _systems(n)
+        return {"A": A, "B": B}, set(), ["A", "B"]
+    F, m, d = features, 3, 12
+    J = rng.normal(size=(24, d))
+    G = rng.normal(size=(F, m, 6))
+    args = {"r": rng.normal(size=(1, m, F)), "H": rng.normal(size=(1, m, d, F)),
+            "P": (J.T @ J / 24 + 0.1 * np.eye(d))[None], "Rm": np.einsum("fac,fbc->abf", G, G)[None],
+            "B": np.zeros((1, m, d, F)), "z": np.zeros((1, m, F)), "logdet": np.zeros((1, F)),
+            "Lp": np.zeros((1, d, d)), "S": np.zeros((1, m, m, F)), "L": np.zeros((1, m, m, F)), "y": np.zeros((1, m, F))}
+    return args, set(), ["B", "z", "logdet"]
 
 
 class Phase:
@@ -140,36 +220,13 @@ class Phase:
     the numba kernel, filter by filter."""
 
     def __init__(self, phase: str, lanes: list[int], features: int):
-        self.phase, self.lanes = phase, lanes
-        n, rng = max(lanes), np.random.default_rng(1)
-        fn = {"prediction": propagate_covariance.py_func, "gain": kernel_gain_downdate(), "solve": solve.py_func,
-              "innovations": feature_innovations_into.py_func}[phase]
+        self.phase, self.features = phase, features
+        self.lanes = [] if phase == "innovations" else lanes  # it runs across a frame's features already
+        fn = (kernel_phase(phase) if phase in UPDATE_PHASES else
+              {"prediction": propagate_covariance, "solve": solve, "innovations": feature_innovations_into}[phase].py_func)
         with slp_vectorize(True):
             self.kernel = kernel_jit(fn, cache=False)  # the kernel's compile, uncached: its assembly can be read
-        self.shared: set[str] = set()
-        if phase == "prediction":
-            P, Phi, Qd = _inputs(n)
-            self.args = {"P": P, "Phi": Phi, "Qd": Qd, "T": np.zeros((n, 15, 27)), "U": np.zeros((n, 15, 15))}
-            self.shared, self.outputs = {"Qd"}, ["P"]
-        elif phase == "gain":
-            P = rng.normal(size=(n, 27, 27))
-            self.args = {"P": P + P.transpose(0, 2, 1), "PCt": rng.normal(size=(n, 27, 12)),
-                         "X": rng.normal(size=(n, 12, 13)), "CP": 0.01 * rng.normal(size=(n, 12, 27)),
-                         "K": np.zeros((n, 27, 12))}
-            self.outputs = ["P"]
-        elif phase == "solve":
-            A, B = _systems(n)
-            self.args, self.outputs = {"A": A, "B": B}, ["A", "B"]
-        else:
-            F, m, d = features, 3, 12
-            J = rng.normal(size=(24, d))
-            G = rng.normal(size=(F, m, 6))
-            self.args = {"r": rng.normal(size=(1, m, F)), "H": rng.normal(size=(1, m, d, F)),
-                         "P": (J.T @ J / 24 + 0.1 * np.eye(d))[None], "Rm": np.einsum("fac,fbc->abf", G, G)[None],
-                         "B": np.zeros((1, m, d, F)), "z": np.zeros((1, m, F)), "logdet": np.zeros((1, F)),
-                         "Lp": np.zeros((1, d, d)), "S": np.zeros((1, m, m, F)), "L": np.zeros((1, m, m, F)),
-                         "y": np.zeros((1, m, F))}
-            self.outputs, self.lanes = ["B", "z", "logdet"], []  # it runs across a frame's features already
+        self.args, self.shared, self.outputs = _phase_inputs(phase, max(lanes), features, np.random.default_rng(1))
         self.reference = {}
         for i in range(len(next(iter(self.args.values())))):
             one = self._filter(i)
@@ -185,12 +242,8 @@ class Phase:
         arrays = list(args.values())
         fresh = tuple(fresh if fresh is not None else [a.copy() for a in arrays])
         with slp_vectorize(True):
-            if self.phase == "solve":
-                _numba_solve_calls(self.kernel, n, fresh, *arrays)
-            elif self.phase == "innovations":
-                _numba_innov_calls(self.kernel, n, fresh, *arrays)
-            else:
-                _numba_calls(self.kernel, n, fresh, *arrays)
+            calls = {"solve": _numba_solve_calls, "information": _numba_info_calls}.get(self.phase, _numba_calls)
+            calls(self.kernel, n, fresh, *arrays)
 
     def variants(self) -> list[tuple[str, int]]:
         """(name, lanes): numba per filter, numba lanes (benchmarks/bench_layout.py's, where it has them), C per
@@ -245,8 +298,8 @@ class Phase:
             scratch = [aligned(np.zeros((12, L))), aligned(np.zeros((13, L)))] if lanes else []
             ptrs = [fresh["A"].ctypes.data_as(ctypes.c_void_p), fresh["B"].ctypes.data_as(ctypes.c_void_p), *ptrs,
                     *(s.ctypes.data_as(ctypes.c_void_p) for s in scratch)]
-        elif self.phase == "innovations":
-            ptrs.append(ctypes.c_long(args["r"].shape[-1]))
+        elif self.phase in ("innovations", "information"):
+            ptrs.append(ctypes.c_long(self.features))
         fn(*ptrs, ctypes.c_long(1))
         same = all(np.array_equal(np.moveaxis(args[k], -1, 0) if lanes else args[k],
                                   np.asarray(self.reference[k][:L]) if lanes else self.reference[k][0])
@@ -282,12 +335,12 @@ def main(argv=None) -> None:
     p.add_argument("--lanes", type=int, nargs="+", default=[4, 8], choices=[4, 8])
     p.add_argument("--repeats", type=int, default=15)
     p.add_argument("--calls", type=int, default=20000, help="filter-calls per timing")
-    p.add_argument("--features", type=int, default=50, help="innovations: a frame's features (kitti00: 50)")
+    p.add_argument("--features", type=int, default=50, help="innovations, information: a frame's (kitti00: 50)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         lib, asm = build(Path(tmp))
         cc = subprocess.run([compiler(), "--version"], capture_output=True, text=True).stdout.splitlines()[0]
-        print(f"C: {cc}, {' '.join(FLAGS[:4])}; numba {numba.__version__}; median of {args.repeats} x {args.calls} "
+        print(f"C: {cc}, {' '.join(FLAGS[:5])}; numba {numba.__version__}; median of {args.repeats} x {args.calls} "
               "filter-calls, CPU time; x: paired ratio against the numba kernel's own code")
         for name in args.phase:
             print(f"{name}:")

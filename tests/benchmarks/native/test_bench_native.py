@@ -29,15 +29,15 @@ def test_every_c_variant_gives_the_kernels_bits_and_the_lanes_pack(load_script, 
             phase = line[:-1]
         elif "us/filter" in line:
             rows[phase, line.split(" us/filter")[0].rsplit(None, 1)[0].strip()] = line
-    numba_lanes = ["numba", "numba lanes 4", "numba lanes 8", "C", "C lanes 4", "C lanes 8"]
-    assert [name for p, name in rows if p == "prediction"] == numba_lanes
-    assert [name for p, name in rows if p == "gain"] == ["numba", "C", "C lanes 4", "C lanes 8"]
-    assert [name for p, name in rows if p == "solve"] == numba_lanes
-    assert [name for p, name in rows if p == "innovations"] == ["numba", "C"]
+    with_numba_lanes = ["numba", "numba lanes 4", "numba lanes 8", "C", "C lanes 4", "C lanes 8"]
+    c_lanes = ["numba", "C", "C lanes 4", "C lanes 8"]
+    for p, names in {"prediction": with_numba_lanes, "project": c_lanes, "information": c_lanes, "gain": c_lanes,
+                     "solve": with_numba_lanes, "innovations": ["numba", "C"]}.items():
+        assert [name for q, name in rows if q == p] == names, (p, out)
     assert all("bit-identical=True" in line for line in rows.values()), out
     counts = {key: [int(w) for w in re.findall(r"(\d+) (?:scalar|packed)", line)] for key, line in rows.items()}
     assert all(sum(c) > 0 for c in counts.values()), counts  # each variant's code was found in the assembly
-    for p in ("prediction", "gain", "solve"):
+    for p in ("prediction", "project", "information", "gain", "solve"):
         assert counts[p, "C lanes 8"][1] > 0, counts  # the lanes are packed
     from llvmlite import binding as llvm
 
@@ -52,18 +52,29 @@ def test_aligned_copies_start_on_a_cache_line_and_keep_the_values(load_script):
     assert out.ctypes.data % 64 == 0 and out.flags.c_contiguous and np.array_equal(out, a)
 
 
-def test_the_gain_phase_is_taken_from_the_kernels_source_and_a_changed_kernel_is_named(load_script):
+def test_the_update_phases_are_taken_from_the_kernels_source_and_a_changed_kernel_is_named(load_script):
+    """kernel_phase compiles update()'s own statements: the gain and downdate computes P - K C P (lower
+    triangle, mirrored), the projection C P C^T, the information sum J^T J over the inliers."""
     native = load_script("bench_native")
     source = (REPO / "avio/filter/update.py").read_text()
-    fn = native.kernel_gain_downdate(source)
     rng = np.random.default_rng(0)
     P, PCt, X, CP = rng.normal(size=(27, 27)), rng.normal(size=(27, 12)), rng.normal(size=(12, 13)), rng.normal(size=(12, 27))
-    K = np.zeros((27, 12))
     expected = (P - (PCt @ X[:, :12]) @ CP)[np.tril_indices(27)]
-    fn(P, PCt, X, CP, K)
+    native.kernel_phase("gain", source)(P, PCt, X, CP, np.zeros((27, 12)))
     assert np.allclose(P[np.tril_indices(27)], expected) and np.array_equal(P, P.T)
-    with pytest.raises(SystemExit, match="update\\(\\) has 1 loops writing K\\[a, b\\]"):
-        native.kernel_gain_downdate(source.replace("acc -= K[a, b] * CP[b, c]", "acc -= CP[b, c]"))
+    C, S = rng.normal(size=(12, 27)), rng.normal(size=(27, 27))
+    out = [np.zeros((12, 27)), np.zeros((27, 12)), np.zeros((12, 12))]
+    native.kernel_phase("project", source)(C, S @ S.T, *out)
+    assert np.allclose(out[2], C @ S @ S.T @ C.T) and np.array_equal(out[2], out[2].T)
+    Jw, rw, inl = rng.normal(size=(3, 12, 9)), rng.normal(size=(3, 9)), np.arange(9) % 3 == 0
+    A, beta, Xi = np.zeros((12, 12)), np.zeros(12), np.zeros((12, 13))
+    used, rr, _ = native.kernel_phase("information", source)(A, beta, Xi, rw, Jw, np.zeros((3, 12)), inl,
+                                                              np.zeros(9), False, np.zeros(9, np.uint8))
+    J = Jw[:, :, inl].transpose(2, 0, 1).reshape(-1, 12)
+    assert used == 3 and np.isclose(rr, (rw[:, inl] ** 2).sum()) and np.allclose(A, J.T @ J)
+    assert np.allclose(Xi[:, 12], J.T @ rw[:, inl].T.reshape(-1))
+    with pytest.raises(SystemExit, match="no longer has the phase 'gain'"):
+        native.kernel_phase("gain", source.replace("acc -= K[a, b] * CP[b, c]", "acc -= CP[b, c]"))
 
 
 def test_a_missing_compiler_is_one_message_naming_it(load_script, monkeypatch):

@@ -1,97 +1,15 @@
-/* Three phases of the filter's update frame in C (benchmarks/native/bench_native.py): each per filter,
- * with the operations of the kernel's numba code in their order, and for L filters in lock-step (every
- * array lanes-last, the lane loop innermost, L a compile-time constant). Compiled with -ffp-contract=off
- * and without fast-math, so every variant gives the kernel's bits. Arrays are row-major doubles.
+/* The update's own phases in C (benchmarks/native/bench_native.py), per filter with the operations of the
+ * kernel's numba code in their order, and for L filters in lock-step where that is a layout (every array
+ * lanes-last, the lane loop innermost, L a compile-time constant). Compiled with -ffp-contract=off and
+ * without fast-math, so every variant gives the kernel's bits. Arrays are row-major doubles.
  *
- * pred:  P <- F P F^T + Q, F = blockdiag(Phi, I_12) (avio.filter.kernels.propagate_covariance, Eq. 18):
- *        P (27, 27), Phi (15, 15), Qd (15, 15) shared by the lanes, scratch T (15, 27), U (15, 15).
- * gain:  K = PCt X[:, :12], P -= K CP, lower triangle mirrored (avio.filter.update.update, Eq. 42):
- *        P (27, 27), PCt (27, 12), X (12, 13), CP (12, 27), scratch K (27, 12).
  * solve: A X = B by elimination with partial pivoting, a pivot per lane (avio.filter._linalg.solve):
  *        A (12, 12), B (12, 13), solved in place from fresh copies A0, B0 on every call.
+ * info:  the information sum over a frame's inliers (Eq. 40).
+ * innov: the feature innovations (Eq. 37), per filter only: they run across a frame's features already.
  * Each *_calls function repeats its phase n times on the same arrays (the timing loop). */
 #include <math.h>
 #include <string.h>
-
-#define PHI_ROWS(I, N, Q_OF, PHI, X_AT, OUT_AT, LANE)                                                        \
-    for (int i = 0; i < 3; i++)                                                                              \
-        for (int b = 0; b < N; b++) {                                                                        \
-            LANE { double acc = Q_OF(i, b);                                                                  \
-                   acc += PHI(i, i) * X_AT(i, b);                                                            \
-                   for (int c = 3; c < 6; c++) acc += PHI(i, c) * X_AT(c, b);                                \
-                   acc += PHI(i, 6 + i) * X_AT(6 + i, b);                                                    \
-                   for (int c = 9; c < 15; c++) acc += PHI(i, c) * X_AT(c, b);                               \
-                   OUT_AT(i, b) = acc; }                                                                     \
-        }                                                                                                    \
-    for (int a = 3; a < 6; a++)                                                                              \
-        for (int b = 0; b < N; b++) {                                                                        \
-            LANE { double acc = Q_OF(a, b);                                                                  \
-                   for (int c = 3; c < 6; c++) acc += PHI(a, c) * X_AT(c, b);                                \
-                   for (int c = 12; c < 15; c++) acc += PHI(a, c) * X_AT(c, b);                              \
-                   OUT_AT(a, b) = acc; }                                                                     \
-        }                                                                                                    \
-    for (int a = 6; a < 9; a++)                                                                              \
-        for (int b = 0; b < N; b++) {                                                                        \
-            LANE { double acc = Q_OF(a, b);                                                                  \
-                   for (int c = 3; c < 6; c++) acc += PHI(a, c) * X_AT(c, b);                                \
-                   acc += PHI(a, a) * X_AT(a, b);                                                            \
-                   for (int c = 9; c < 15; c++) acc += PHI(a, c) * X_AT(c, b);                               \
-                   OUT_AT(a, b) = acc; }                                                                     \
-        }                                                                                                    \
-    for (int a = 9; a < 15; a++)                                                                             \
-        for (int b = 0; b < N; b++) {                                                                        \
-            LANE { OUT_AT(a, b) = Q_OF(a, b) + PHI(a, a) * X_AT(a, b); }                                     \
-        }
-
-/* One filter. The lane loop of the lock-step variants below wraps the same statements. */
-#define ONE
-#define Q0(a, b) 0.0
-#define QD(a, b) Qd[(a) * 15 + (b)]
-#define PHI1(a, c) Phi[(a) * 15 + (c)]
-#define P_AT(a, b) P[(a) * 27 + (b)]
-#define T_AT(a, b) T[(a) * 27 + (b)]
-#define U_AT(a, b) U[(a) * 15 + (b)]
-
-static void pred_one(double *restrict P, const double *restrict Phi, const double *restrict Qd,
-                     double *restrict T, double *restrict U) {
-    PHI_ROWS(i, 27, Q0, PHI1, P_AT, T_AT, ONE)
-    for (int a = 0; a < 15; a++)
-        for (int b = 0; b < 15; b++) U[a * 15 + b] = T[b * 27 + a];
-    PHI_ROWS(i, 15, QD, PHI1, U_AT, P_AT, ONE)
-    for (int a = 0; a < 15; a++)
-        for (int b = 15; b < 27; b++) {
-            P[a * 27 + b] = T[a * 27 + b];
-            P[b * 27 + a] = T[a * 27 + b];
-        }
-}
-
-void pred_calls(double *P, const double *Phi, const double *Qd, double *T, double *U, long n) {
-    for (long k = 0; k < n; k++) pred_one(P, Phi, Qd, T, U);
-}
-
-static void gain_one(double *restrict P, const double *restrict PCt, const double *restrict X,
-                     const double *restrict CP, double *restrict K) {
-    for (int a = 0; a < 27; a++) {
-        for (int b = 0; b < 12; b++) K[a * 12 + b] = 0.0;
-        for (int c = 0; c < 12; c++) {
-            double f = PCt[a * 12 + c];
-            for (int b = 0; b < 12; b++) K[a * 12 + b] += f * X[c * 13 + b];
-        }
-    }
-    for (int a = 0; a < 27; a++) {
-        int n = (a / 8 + 1) * 8 < 27 ? (a / 8 + 1) * 8 : 27;  /* the kernel's rows rounded up to 8 entries */
-        for (int c = 0; c < n; c++) {
-            double acc = P[a * 27 + c];
-            for (int b = 0; b < 12; b++) acc -= K[a * 12 + b] * CP[b * 27 + c];
-            P[a * 27 + c] = acc;
-        }
-        for (int c = 0; c < a; c++) P[c * 27 + a] = P[a * 27 + c];
-    }
-}
-
-void gain_calls(double *P, const double *PCt, const double *X, const double *CP, double *K, long n) {
-    for (long k = 0; k < n; k++) gain_one(P, PCt, X, CP, K);
-}
 
 static void solve_one(double *restrict A, double *restrict B) {
     const int m = 12, k = 13;
@@ -131,50 +49,50 @@ void solve_calls(const double *A0, const double *B0, double *A, double *B, long 
     }
 }
 
+/* info: the information sum over a frame's inliers (avio.filter.update.update, Eq. 40): A (12, 12) and
+ *       beta = X[:, 12] from the whitened residuals rw (3, F) and Jacobians Jw (3, 12, F) of the features
+ *       with inl[f] != 0 (uint8), in feature order; scratch jw_f (3, 12); stats (3,) = the inliers,
+ *       sum rw^2 and sum ldR[f] over them. A lane that is not an inlier keeps its sums through a select. */
+static void info_one(double *restrict A, double *restrict beta, double *restrict X, const double *restrict rw,
+                     const double *restrict Jw, double *restrict jw_f, const unsigned char *restrict inl,
+                     const double *restrict ldR, double *restrict stats, int F) {
+    for (int i = 0; i < 144; i++) A[i] = 0.0;
+    for (int b = 0; b < 12; b++) beta[b] = 0.0;
+    long used = 0;
+    double rr = 0.0, log_det_R = 0.0;
+    for (int f = 0; f < F; f++) {
+        if (!inl[f]) continue;
+        used += 1;
+        log_det_R += ldR[f];
+        for (int a = 0; a < 3; a++) {
+            rr += rw[a * F + f] * rw[a * F + f];
+            for (int b = 0; b < 12; b++) jw_f[a * 12 + b] = Jw[(a * 12 + b) * F + f];
+        }
+        for (int a = 0; a < 3; a++) {
+            double rwa = rw[a * F + f];
+            for (int b = 0; b < 12; b++) beta[b] += jw_f[a * 12 + b] * rwa;
+            for (int b = 0; b < 12; b++) {
+                double jb = jw_f[a * 12 + b];
+                for (int c = 0; c < 12; c++) A[b * 12 + c] += jb * jw_f[a * 12 + c];
+            }
+        }
+    }
+    for (int b = 0; b < 12; b++) {
+        X[b * 13 + 12] = beta[b];
+        for (int c = 0; c < b; c++) A[b * 12 + c] = A[c * 12 + b];
+    }
+    stats[0] = (double)used;
+    stats[1] = rr;
+    stats[2] = log_det_R;
+}
+
+void info_calls(double *A, double *beta, double *X, const double *rw, const double *Jw, double *jw_f,
+                const unsigned char *inl, const double *ldR, double *stats, long F, long n) {
+    for (long k = 0; k < n; k++) info_one(A, beta, X, rw, Jw, jw_f, inl, ldR, stats, (int)F);
+}
+
 /* L filters in lock-step. */
-#define LANES(L)                                                                                             \
-static void pred_lanes_##L(double *restrict P, const double *restrict Phi, const double *restrict Qd,        \
-                           double *restrict T, double *restrict U) {                                         \
-    enum { NL = L };  /* the lane count in the PHI_ROWS macros' index expressions */                         \
-    PHI_ROWS(i, 27, Q0, PHIL, PL_AT, TL_AT, for (int l = 0; l < L; l++))                                     \
-    for (int a = 0; a < 15; a++)                                                                             \
-        for (int b = 0; b < 15; b++)                                                                         \
-            for (int l = 0; l < L; l++) U[(a * 15 + b) * L + l] = T[(b * 27 + a) * L + l];                  \
-    PHI_ROWS(i, 15, QD, PHIL, UL_AT, PL_AT, for (int l = 0; l < L; l++))                                     \
-    for (int a = 0; a < 15; a++)                                                                             \
-        for (int b = 15; b < 27; b++)                                                                        \
-            for (int l = 0; l < L; l++) {                                                                    \
-                P[(a * 27 + b) * L + l] = T[(a * 27 + b) * L + l];                                           \
-                P[(b * 27 + a) * L + l] = T[(a * 27 + b) * L + l];                                           \
-            }                                                                                                \
-}                                                                                                            \
-void pred_lanes_calls_##L(double *P, const double *Phi, const double *Qd, double *T, double *U, long n) {    \
-    for (long k = 0; k < n; k++) pred_lanes_##L(P, Phi, Qd, T, U);                                           \
-}                                                                                                            \
-static void gain_lanes_##L(double *restrict P, const double *restrict PCt, const double *restrict X,         \
-                           const double *restrict CP, double *restrict K) {                                  \
-    for (int a = 0; a < 27; a++) {                                                                           \
-        for (int b = 0; b < 12; b++)                                                                         \
-            for (int l = 0; l < L; l++) K[(a * 12 + b) * L + l] = 0.0;                                       \
-        for (int c = 0; c < 12; c++)                                                                         \
-            for (int b = 0; b < 12; b++)                                                                     \
-                for (int l = 0; l < L; l++) K[(a * 12 + b) * L + l] += PCt[(a * 12 + c) * L + l] * X[(c * 13 + b) * L + l]; \
-    }                                                                                                        \
-    for (int a = 0; a < 27; a++) {  /* the lower triangle: the rest is the mirror's */                        \
-        for (int c = 0; c <= a; c++) {                                                                       \
-            double acc[L];                                                                                   \
-            for (int l = 0; l < L; l++) acc[l] = P[(a * 27 + c) * L + l];                                    \
-            for (int b = 0; b < 12; b++)                                                                     \
-                for (int l = 0; l < L; l++) acc[l] -= K[(a * 12 + b) * L + l] * CP[(b * 27 + c) * L + l];    \
-            for (int l = 0; l < L; l++) P[(a * 27 + c) * L + l] = acc[l];                                    \
-        }                                                                                                    \
-        for (int c = 0; c < a; c++)                                                                          \
-            for (int l = 0; l < L; l++) P[(c * 27 + a) * L + l] = P[(a * 27 + c) * L + l];                  \
-    }                                                                                                        \
-}                                                                                                            \
-void gain_lanes_calls_##L(double *P, const double *PCt, const double *X, const double *CP, double *K, long n) { \
-    for (long k = 0; k < n; k++) gain_lanes_##L(P, PCt, X, CP, K);                                           \
-}                                                                                                            \
+#define SOLVE_LANES(L)                                                                                             \
 static void solve_lanes_##L(double *restrict A, double *restrict B, double *restrict ra, double *restrict rb) { \
     const int m = 12, k = 13;                                                                                \
     for (int c = 0; c < m; c++) {                                                                            \
@@ -231,13 +149,63 @@ void solve_lanes_calls_##L(const double *A0, const double *B0, double *A, double
     }                                                                                                        \
 }
 
-#define PHIL(a, c) Phi[((a) * 15 + (c)) * NL + l]
-#define PL_AT(a, b) P[((a) * 27 + (b)) * NL + l]
-#define TL_AT(a, b) T[((a) * 27 + (b)) * NL + l]
-#define UL_AT(a, b) U[((a) * 15 + (b)) * NL + l]
+SOLVE_LANES(4)
+SOLVE_LANES(8)
 
-LANES(4)
-LANES(8)
+#define INFO_LANES(L)                                                                                              \
+static void info_lanes_##L(double *restrict A, double *restrict beta, double *restrict X,                    \
+                           const double *restrict rw, const double *restrict Jw, double *restrict jw_f,      \
+                           const unsigned char *restrict inl, const double *restrict ldR,                    \
+                           double *restrict stats, int F) {                                                  \
+    double used[L], rr[L], ldr[L];                                                                           \
+    for (int i = 0; i < 144 * L; i++) A[i] = 0.0;                                                            \
+    for (int i = 0; i < 12 * L; i++) beta[i] = 0.0;                                                          \
+    for (int l = 0; l < L; l++) { used[l] = 0.0; rr[l] = 0.0; ldr[l] = 0.0; }                                \
+    for (int f = 0; f < F; f++) {                                                                            \
+        int any = 0;                                                                                         \
+        for (int l = 0; l < L; l++) any |= inl[f * L + l];                                                   \
+        if (!any) continue;                                                                                  \
+        for (int l = 0; l < L; l++) {                                                                        \
+            int m = inl[f * L + l] != 0;                                                                     \
+            used[l] += m;                                                                                    \
+            ldr[l] = m ? ldr[l] + ldR[f * L + l] : ldr[l];                                                   \
+        }                                                                                                    \
+        for (int a = 0; a < 3; a++) {                                                                        \
+            for (int l = 0; l < L; l++) {                                                                    \
+                double r = rw[(a * F + f) * L + l], t = rr[l] + r * r;                                       \
+                rr[l] = inl[f * L + l] ? t : rr[l];                                                          \
+            }                                                                                                \
+            for (int b = 0; b < 12; b++)                                                                     \
+                for (int l = 0; l < L; l++) jw_f[(a * 12 + b) * L + l] = Jw[((a * 12 + b) * F + f) * L + l]; \
+        }                                                                                                    \
+        for (int a = 0; a < 3; a++) {                                                                        \
+            for (int b = 0; b < 12; b++)                                                                     \
+                for (int l = 0; l < L; l++) {                                                                \
+                    double t = beta[b * L + l] + jw_f[(a * 12 + b) * L + l] * rw[(a * F + f) * L + l];       \
+                    beta[b * L + l] = inl[f * L + l] ? t : beta[b * L + l];                                  \
+                }                                                                                            \
+            for (int b = 0; b < 12; b++)                                                                     \
+                for (int c = 0; c < 12; c++)                                                                 \
+                    for (int l = 0; l < L; l++) {                                                            \
+                        double t = A[(b * 12 + c) * L + l] + jw_f[(a * 12 + b) * L + l] * jw_f[(a * 12 + c) * L + l]; \
+                        A[(b * 12 + c) * L + l] = inl[f * L + l] ? t : A[(b * 12 + c) * L + l];              \
+                    }                                                                                        \
+        }                                                                                                    \
+    }                                                                                                        \
+    for (int b = 0; b < 12; b++) {                                                                           \
+        for (int l = 0; l < L; l++) X[(b * 13 + 12) * L + l] = beta[b * L + l];                              \
+        for (int c = 0; c < b; c++)                                                                          \
+            for (int l = 0; l < L; l++) A[(b * 12 + c) * L + l] = A[(c * 12 + b) * L + l];                  \
+    }                                                                                                        \
+    for (int l = 0; l < L; l++) { stats[l] = used[l]; stats[L + l] = rr[l]; stats[2 * L + l] = ldr[l]; }      \
+}                                                                                                            \
+void info_lanes_calls_##L(double *A, double *beta, double *X, const double *rw, const double *Jw, double *jw_f, \
+                          const unsigned char *inl, const double *ldR, double *stats, long F, long n) {      \
+    for (long k = 0; k < n; k++) info_lanes_##L(A, beta, X, rw, Jw, jw_f, inl, ldR, stats, (int)F);         \
+}
+
+INFO_LANES(4)
+INFO_LANES(8)
 
 /* innov: per feature B = H Lp (P = Lp Lp^T), S = B B^T + Rm, its Cholesky factor, log det S and
  * z = S^-1 r (avio.filter.outliers.feature_innovations_into, Eq. 37), features last: r (3, F),
