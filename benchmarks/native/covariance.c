@@ -96,26 +96,24 @@ void gain_calls(double *P, const double *PCt, const double *X, const double *CP,
  *        symmetrised (avio.filter.update.update, Eq. 37): C (12, 27), P (27, 27); out CP (12, 27),
  *        PCt (27, 12), Sig (12, 12). A lane's zero of C keeps its sum through a select; a column of C
  *        that is zero in every lane is skipped. */
+static void matmul_skip(const double *restrict A, const double *restrict B, double *restrict out, int ncols) {
+    /* out (12, ncols) = A (12, 27) B (27, ncols), A's zeros skipped (avio.filter._linalg.matmul) */
+    for (int i = 0; i < 12; i++) {
+        for (int j = 0; j < ncols; j++) out[i * ncols + j] = 0.0;
+        for (int k = 0; k < 27; k++) {
+            double a = A[i * 27 + k];
+            if (a != 0.0)
+                for (int j = 0; j < ncols; j++) out[i * ncols + j] += a * B[k * ncols + j];
+        }
+    }
+}
+
 static void proj_one(const double *restrict C, const double *restrict P, double *restrict CP,
                      double *restrict PCt, double *restrict Sig) {
-    for (int i = 0; i < 12; i++) {
-        for (int j = 0; j < 27; j++) CP[i * 27 + j] = 0.0;
-        for (int k = 0; k < 27; k++) {
-            double a = C[i * 27 + k];
-            if (a != 0.0)
-                for (int j = 0; j < 27; j++) CP[i * 27 + j] += a * P[k * 27 + j];
-        }
-    }
+    matmul_skip(C, P, CP, 27);
     for (int a = 0; a < 27; a++)
         for (int b = 0; b < 12; b++) PCt[a * 12 + b] = CP[b * 27 + a];
-    for (int i = 0; i < 12; i++) {
-        for (int j = 0; j < 12; j++) Sig[i * 12 + j] = 0.0;
-        for (int k = 0; k < 27; k++) {
-            double a = C[i * 27 + k];
-            if (a != 0.0)
-                for (int j = 0; j < 12; j++) Sig[i * 12 + j] += a * PCt[k * 12 + j];
-        }
-    }
+    matmul_skip(C, PCt, Sig, 12);
     for (int a = 0; a < 12; a++)
         for (int b = 0; b < a; b++) {
             double s = 0.5 * (Sig[a * 12 + b] + Sig[b * 12 + a]);
@@ -183,39 +181,30 @@ COV_LANES(4)
 COV_LANES(8)
 
 #define PROJ_LANES(L)                                                                                        \
-static void proj_lanes_##L(const double *restrict C, const double *restrict P, double *restrict CP,         \
-                           double *restrict PCt, double *restrict Sig) {                                     \
+static void matmul_lanes_##L(const double *restrict A, const double *restrict B, double *restrict out,       \
+                             int ncols) {                                                                    \
     for (int i = 0; i < 12; i++) {                                                                           \
-        for (int j = 0; j < 27 * L; j++) CP[i * 27 * L + j] = 0.0;                                           \
+        for (int j = 0; j < ncols * L; j++) out[i * ncols * L + j] = 0.0;                                    \
         for (int k = 0; k < 27; k++) {                                                                       \
             int nz = 0;                                                                                      \
             double w[L];                                                                                     \
-            for (int l = 0; l < L; l++) { w[l] = C[(i * 27 + k) * L + l]; nz |= w[l] != 0.0; }               \
-            if (!nz) continue;                                                                               \
-            for (int j = 0; j < 27; j++)                                                                     \
+            for (int l = 0; l < L; l++) { w[l] = A[(i * 27 + k) * L + l]; nz |= w[l] != 0.0; }               \
+            if (!nz) continue;  /* a column zero in every lane */                                            \
+            for (int j = 0; j < ncols; j++)                                                                  \
                 for (int l = 0; l < L; l++) {                                                                \
-                    double old = CP[(i * 27 + j) * L + l], t = old + w[l] * P[(k * 27 + j) * L + l];         \
-                    CP[(i * 27 + j) * L + l] = w[l] != 0.0 ? t : old;                                        \
+                    double old = out[(i * ncols + j) * L + l], t = old + w[l] * B[(k * ncols + j) * L + l];  \
+                    out[(i * ncols + j) * L + l] = w[l] != 0.0 ? t : old;                                    \
                 }                                                                                            \
         }                                                                                                    \
     }                                                                                                        \
+}                                                                                                            \
+static void proj_lanes_##L(const double *restrict C, const double *restrict P, double *restrict CP,          \
+                           double *restrict PCt, double *restrict Sig) {                                     \
+    matmul_lanes_##L(C, P, CP, 27);                                                                          \
     for (int a = 0; a < 27; a++)                                                                             \
         for (int b = 0; b < 12; b++)                                                                         \
-            for (int l = 0; l < L; l++) PCt[(a * 12 + b) * L + l] = CP[(b * 27 + a) * L + l];               \
-    for (int i = 0; i < 12; i++) {                                                                           \
-        for (int j = 0; j < 12 * L; j++) Sig[i * 12 * L + j] = 0.0;                                          \
-        for (int k = 0; k < 27; k++) {                                                                       \
-            int nz = 0;                                                                                      \
-            double w[L];                                                                                     \
-            for (int l = 0; l < L; l++) { w[l] = C[(i * 27 + k) * L + l]; nz |= w[l] != 0.0; }               \
-            if (!nz) continue;                                                                               \
-            for (int j = 0; j < 12; j++)                                                                     \
-                for (int l = 0; l < L; l++) {                                                                \
-                    double old = Sig[(i * 12 + j) * L + l], t = old + w[l] * PCt[(k * 12 + j) * L + l];      \
-                    Sig[(i * 12 + j) * L + l] = w[l] != 0.0 ? t : old;                                       \
-                }                                                                                            \
-        }                                                                                                    \
-    }                                                                                                        \
+            for (int l = 0; l < L; l++) PCt[(a * 12 + b) * L + l] = CP[(b * 27 + a) * L + l];                \
+    matmul_lanes_##L(C, PCt, Sig, 12);                                                                       \
     for (int a = 0; a < 12; a++)                                                                             \
         for (int b = 0; b < a; b++)                                                                          \
             for (int l = 0; l < L; l++) {                                                                    \
