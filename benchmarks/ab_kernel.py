@@ -3,6 +3,7 @@ in one process, and whether they give the same bits (issue 13's A/B of a kernel 
 
     python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
                                    [--set KEY=VALUE ...] [--tree-set KEY=VALUE ...]
+    python benchmarks/ab_kernel.py --base BASE --blocks 0 1 4 8    # each lock-step block size of the tree
     python benchmarks/ab_kernel.py --base BASE --compile-pairs 5    # the first-run compile instead
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
@@ -19,6 +20,9 @@ statistics to the bit.
 The base commit may predate the package layout of e67dede (the kernel in avio/_kernels.py, the
 filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's layout is read
 from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
+
+``--blocks`` times the working tree at each of these lock-step block sizes (avio.filter.batch.set_block:
+0 numba's per-filter kernel, 1, 4, 8 the C blocks), each in every pair; without it, its default.
 
 ``--compile-pairs K`` times the first-run compile instead: K pairs of processes, each with an empty
 numba cache, the CPU time of its first filter call (batch 1; the call that compiles the kernel).
@@ -168,6 +172,9 @@ def main(argv=None) -> None:
     ap.add_argument("--tree-set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="FilterConfig overrides of the working tree's filter only (the cost of an option "
                          "against the base's default; the bits then differ), e.g. jacobian_pixels=corrected")
+    ap.add_argument("--blocks", type=int, nargs="*", default=None, metavar="L",
+                    help="the working tree's lock-step block sizes to time, each against the base (0: numba's "
+                         "per-filter kernel); default: its own rule")
     ap.add_argument("--compile-pairs", type=int, default=0, metavar="K",
                     help="instead of timing evaluations: K pairs of first-run compiles of the two kernels, each in a "
                          "fresh process with an empty NUMBA_CACHE_DIR (the first call at batch 1), in a random order "
@@ -176,6 +183,10 @@ def main(argv=None) -> None:
     if args.compile_pairs < 0:
         print(f"ab_kernel: --compile-pairs {args.compile_pairs}: expected an integer >= 0", file=sys.stderr)
         raise SystemExit(2)
+    for block in args.blocks or []:
+        if block not in (0, 1, 4, 8):
+            print(f"ab_kernel: --blocks {block}: expected 0, 1, 4 or 8", file=sys.stderr)
+            raise SystemExit(2)
     both_set, tree_set = _overrides("--set", args.set), _overrides("--tree-set", args.tree_set)
     data = Path(args.data)
     if not (data / "kitti00").is_dir():
@@ -194,21 +205,31 @@ def main(argv=None) -> None:
         print(f"{label}: {name} from {Path(filt.__file__).parent}, first call {time.perf_counter() - t:.1f} s",
               flush=True)
         runs[label] = (filt, seq, cals, cfg, prep, first)
-    same = same_bits(runs["base"][5], runs["tree"][5])
+    blocks = {"tree": None} if args.blocks is None else {f"tree, block {b}": b for b in args.blocks}
+    tree_batch = importlib.import_module("avio.filter.batch")
+    for label in blocks:
+        runs[label] = runs["tree"]
+    same = {}
+    for label, block in blocks.items():
+        tree_batch.set_block(block)
+        filt, seq, cals, cfg, prep, _first = runs[label]
+        same[label] = same_bits(runs["base"][5], filt.run(seq, cals, cfg, prep))
     rng = np.random.default_rng(0)
-    ms = {"base": [], "tree": []}
+    ms = {label: [] for label in ("base", *blocks)}
     for _ in range(args.pairs):
-        for label in rng.permutation(["base", "tree"]):
+        for label in rng.permutation(list(ms)):
             filt, seq, cals, cfg, prep, _first = runs[label]
+            tree_batch.set_block(blocks.get(label))
             t = time.process_time()  # CPU time: fair while other processes share the machine
             filt.run(seq, cals, cfg, prep)
             ms[label].append(1e3 * (time.process_time() - t) / args.batch)
-    ratio = np.asarray(ms["base"]) / np.asarray(ms["tree"])
-    q1, q2, q3 = np.percentile(ratio, [25, 50, 75])
     print(f"kitti00 15-796, batch {args.batch}, {args.threads} thread(s), {args.pairs} pairs: base "
-          f"{np.median(ms['base']):.2f} ms, working tree {np.median(ms['tree']):.2f} ms CPU per evaluation (medians)")
-    print(f"speed-up base/tree: median {q2:.3f}x (quartiles {q1:.3f}-{q3:.3f}); same bits: {same}")
-
+          f"{np.median(ms['base']):.2f} ms CPU per evaluation (median)")
+    for label in blocks:
+        ratio = np.asarray(ms["base"]) / np.asarray(ms[label])
+        q1, q2, q3 = np.percentile(ratio, [25, 50, 75])
+        print(f"{label}: {np.median(ms[label]):.2f} ms; speed-up base/tree: median {q2:.3f}x (quartiles "
+              f"{q1:.3f}-{q3:.3f}); same bits: {same[label]}")
 
 if __name__ == "__main__":
     main()

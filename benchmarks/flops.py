@@ -48,11 +48,14 @@ PHASES = {"propagate_one": "propagation", "propagate_covariance": "covariance pr
           "measure": "measurement", "_noise_model": "noise model", "feature_innovations_into": "innovations",
           "one_point_ransac_into": "RANSAC", "mahalanobis_gate": "gate", "inject": "injection",
           "slide": "slide", "zero_velocity_update_into": "zero-velocity update", "_bad": "divergence test",
-          "update": "update, selection"}
-#: Comments of avio/filter/update.py:update that open a step of its own body (first match in order).
-UPDATE_ANCHORS = {"# CP = C P": "C P and Sigma", "# The score (avio/objectives.py": "score",
-                  "# Information form over the inliers": "information sum", "# X = (I + A Sigma)^-1": "gain",
-                  "# Eq. (42): P -=": "downdate", "# Eq. (8): the injection.": "injection"}
+          "update": "update, selection", "project": "C P and Sigma", "update_statistics": "gain",
+          "downdate": "downdate"}
+#: Lines of avio/filter/update.py's stage functions that open a step of their own body (by function; the
+#: text a line starts with): the rest of update() and update_information() is "update, selection".
+UPDATE_ANCHORS = {"update_information": {"# The score (avio/objectives.py": "score",
+                                         "# Information form over the inliers": "information sum",
+                                         "# X = (I + A Sigma)^-1": "gain"},
+                  "update": {"solve(u_.Mx, u_.X)": "gain"}}
 
 
 #: FLOPs per call of each phase: (fixed, per feature, per feature squared), F the features per
@@ -66,7 +69,7 @@ EVERY_FRAME = {"propagation": (699, 0, 0), "covariance prediction": (7308, 0, 0)
 UPDATE = {"measurement": (2178, 963, 0), "noise model": (1, 105, 0), "C P and Sigma": (8556, 0, 0),
           "innovations": (662, 657, 0), "score": (0, 10, 0), "RANSAC": (0, 75, 63), "gate": (0, 6, 0),
           "information sum": (0, 1060, 0), "gain": (9418, 0, 0), "downdate": (18936, 0, 0),
-          "injection": (324, 0, 0), "update, selection": (18, 0, 0)}
+          "injection": (324, 0, 0), "update, selection": (19, 0, 0)}
 
 
 #: Phases that run whole blocks of avio.filter.trifocal.LANES features (a partial block's spare
@@ -143,17 +146,17 @@ def _add(n: int = 1, kind: str | None = None) -> None:
     _COUNT[phase] = _COUNT.get(phase, 0) + n
 
 
-_UPDATE_LINES: list[tuple[int, str]] = []
+_UPDATE_LINES: dict[str, list[tuple[int, str]]] = {}  # function: (first line, step) of UPDATE_ANCHORS
 
 
 def _phase() -> str:
     phase = _STACK[-1] if _STACK else "other"
     if phase == "update, selection" and _UPDATE_LINES:
         f = sys._getframe(2)
-        while f is not None and f.f_code.co_name != "update":
+        while f is not None and f.f_code.co_name not in _UPDATE_LINES:
             f = f.f_back
         if f is not None:
-            for line, name in reversed(_UPDATE_LINES):
+            for line, name in reversed(_UPDATE_LINES[f.f_code.co_name]):
                 if f.f_lineno >= line:
                     return name
     return phase
@@ -294,17 +297,21 @@ def twin_run(sequence, calibration, config=None) -> tuple[dict[str, int], dict]:
     def capture(lo, hi, *a):
         args.extend(a)
 
-    src, first = inspect.getsourcelines(update.update.py_func)
-    _UPDATE_LINES[:] = sorted((first + next(i for i, s in enumerate(src) if anchor in s), name)
-                              for anchor, name in UPDATE_ANCHORS.items() if any(anchor in s for s in src))
-    threads = set_threads(1)
+    _UPDATE_LINES.clear()
+    for function, anchors in UPDATE_ANCHORS.items():
+        src, first = inspect.getsourcelines(getattr(update, function).py_func)
+        _UPDATE_LINES[function] = sorted((first + next(i for i, s in enumerate(src) if s.strip().startswith(anchor)),
+                                          name) for anchor, name in anchors.items())
+    threads, block = set_threads(1), batch._BLOCK
     old = batch._kernels.run_filters
-    try:
+    try:  # the per-filter kernel's call (a lock-step block does the same operations per lane)
+        batch.set_block(0)
         batch._kernels.run_filters = capture
         batch.run(sequence, calibration, config)
     finally:
         batch._kernels.run_filters = old
         set_threads(threads)
+        batch.set_block(block)
     _COUNT.clear()
     _CALLS.clear()
     _ALLOCATED[0] = 0

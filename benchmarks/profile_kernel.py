@@ -42,10 +42,11 @@ def _indent(block: str, by: str = "    ") -> str:
     return "".join(by + line + "\n" if line else "\n" for line in block.rstrip("\n").split("\n"))
 
 
-def _wrap(src: str, start: str, end: str, i: int, where: str = "avio/filter/update.py") -> str:
-    """Wrap the lines from anchor ``start`` up to anchor ``end`` in ``for _q in range(rep[i])``."""
+def _wrap(src: str, start: str, end: str | None, i: int, where: str = "avio/filter/update.py") -> str:
+    """Wrap the lines from anchor ``start`` up to anchor ``end`` (None: the end of the file) in
+    ``for _q in range(rep[i])``."""
     a = _find(src, start, where=where)
-    b = _find(src, end, a + 1, where=where)
+    b = len(src) if end is None else _find(src, end, a + 1, where=where)
     block = src[a:b]
     head = block[:len(block) - len(block.lstrip(" "))]
     return src[:a] + f"{head}for _q in range(rep[{i}]):\n" + _indent(block) + src[b:]
@@ -65,26 +66,35 @@ def _replace(src: str, old: str, new: str, where: str = "avio/filter/update.py")
 
 
 def patch_update(src: str) -> str:
-    """avio/filter/update.py with every phase of the update wrapped in a repeat loop (module docstring)."""
+    """avio/filter/update.py with every phase of the update wrapped in a repeat loop (module docstring):
+    update() and its stages take ``rep``."""
     src = _replace(src, "cfg, ws, record, decided):", "cfg, ws, record, decided, rep):")
+    # the stages' calls in update() and their definitions: (text, times it occurs)
+    for text, times in (("update_measure(x, omega, cal, i, uv, valid, cfg, ws", 2),
+                        ("update_information(valid, cfg, ws, record, decided", 2),
+                        ("downdate(x.P, u_.PCt, u_.X, u_.CP, u_.K", 1), ("def downdate(P, PCt, X, CP, K", 1)):
+        for _ in range(times):
+            src = _replace(src, f"{text})", f"{text}, rep)")
+    src = _wrap(src, "    project(u_.C, x.P", "    used, rr, log_det_R, nll = update_information(", 1)
+    # the solve overwrites Mx and X: each extra pass rebuilds them from A, Sigma and beta first
+    src = _replace(src, "    solve(u_.Mx, u_.X)",
+                   "    for _q in range(rep[12] - 1):\n        matmul(u_.A, u_.Sig, u_.Mx)\n        for a in range(12):\n"
+                   "            u_.Mx[a, a] += 1.0\n            u_.X[a, 12] = ws.noise.beta[a]\n"
+                   "            for b in range(12):\n                u_.X[a, b] = u_.A[a, b]\n"
+                   "        solve(u_.Mx, u_.X)\n    solve(u_.Mx, u_.X)")
+    src = _wrap(src, "    nis, log_det_S, pose_trace = update_statistics(", "    downdate(x.P", 10)
     src = _wrap(src, "    measure(x.R, x.p, x.v, x.cp0", "    # Eq. (36): without baseline", 0)
-    src = _wrap(src, "    matmul(C, Pi, CP)\n", "    for f in range(F):\n        inl[f] = ok[f]", 1)
+    src = _wrap(src, "    n_valid = 0\n    gain_limit2", "    return n_ok, n_valid", 11)
     src = _wrap(src, "    feature_innovations_into(", "    # The score (avio/objectives.py", 2)
     src = _wrap(src, "    nll = 0.0\n", "    if mode == MODE_RANSAC or mode == MODE_BOTH:", 10)
     src = _wrap(src, "        one_point_ransac_into(", "    if mode == MODE_GATE or mode == MODE_BOTH:", 3)
     src = _wrap(src, "    # Information form over the inliers", "    for b in range(d):\n        X[b, d] = beta[b]\n", 4)
-    src = _wrap(src, "    n_valid = 0\n    gain_limit2", "    # CP = C P (C is", 11)
-    # the solve overwrites the right-hand side X[:, d]: each pass restores it from beta first
-    src = _wrap(src, "    for b in range(d):\n        X[b, d] = beta[b]\n", "    log_det_S = log_det_R\n", 12)
-    src = _wrap(src, "    log_det_S = log_det_R\n", "    dof = M * used", 10)
-    src = _wrap(src, "    for a in range(27):\n        for b in range(d):\n            K[a, b] = 0.0",
+    src = _wrap(src, "    for a in range(27):\n        for b in range(12):\n            K[a, b] = 0.0",
                 "    # Each entry's 12 terms are summed in a register", 5)
     # the downdate runs -K, +K, -K (module docstring)
     src = _replace(src, "            acc -= K[a, b] * CP[b, c]\n",
                    "            acc += ((-1.0 if _q % 2 == 0 else 1.0) * K[a, b]) * CP[b, c]\n")
-    src = _wrap(src, "    for a in range(27):\n        n = min(27",
-                "    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)", 6)
-    return src
+    return _wrap(src, "    for a in range(27):\n        n = min(27", None, 6)
 
 
 def patch_kernels(src: str) -> str:
@@ -137,6 +147,7 @@ PHASES = {phases!r}
 seq = load_kitti00({data!r}, 15, 796, seed=0)
 cfg = FilterConfig(); prep = prepare(seq, cfg)
 set_threads(1)
+af.set_block(0)  # the patched kernel: numba's per-filter one (lock-step blocks run it per lane)
 n = {batch}
 cals = _candidates(seq.truth_calibration, n, seed=n)
 t = time.perf_counter(); run(seq, cals, cfg, prep)

@@ -46,11 +46,14 @@ from avio.calibration import Calibration
 from avio.filter import kernels as _kernels
 from avio.filter.config import CORRECTION_CAP_SIGMAS, FilterConfig, FilterError, FilterResult
 from avio.filter.interface import Calibrations, Outputs, SequenceInputs, Settings
+from avio.filter.lanes import block as _block
+from avio.filter.lanes import native as _native
 from avio.filter.prepare import _Prepared, prepare
 from avio.filter.update import MODE_BOTH, MODE_GATE, MODE_NONE, MODE_RANSAC
 from avio.sequence import Sequence
 
 _THREADS: int | None = None  # set_threads(); None: the default rule
+_BLOCK: int | None = None  # set_block(); None: the default rule
 
 
 def default_threads() -> int:
@@ -79,40 +82,64 @@ def threads() -> int:
     return _THREADS if _THREADS is not None else default_threads()
 
 
+def set_block(n: int | None = None) -> int | None:
+    """Filters per lock-step block (avio/filter/lanes/): 1, 4 or 8; 0 for numba's per-filter kernel
+    (the fallback where no C compiler is found); None for the default rule (:func:`block_size`).
+    Results do not depend on it. Returns the setting in effect."""
+    global _BLOCK
+    if n is not None and (isinstance(n, bool) or n not in (0, *_native.BLOCK_SIZES)):
+        raise FilterError(f"set_block: n must be one of {(0, *_native.BLOCK_SIZES)} or None, got {n!r}")
+    _BLOCK = None if n is None else int(n)
+    return _BLOCK
+
+
+def block_size(n: int, n_threads: int) -> int:
+    """The lock-step block size for a batch of n on n_threads: :func:`set_block`'s, else the largest
+    of 8 and 4 that every thread fills at least once (8 at batch 64 on 2 threads:
+    benchmarks/README.md), else 1; 0 where the C kernel is unavailable (numba's per-filter kernel
+    runs: avio.filter.lanes.native.unavailable says why)."""
+    if _BLOCK == 0 or _native.library() is None:
+        return 0
+    if _BLOCK is not None:
+        return _BLOCK
+    per_thread = -(-n // n_threads)
+    return next(L for L in (8, 4, 1) if L <= per_thread)
+
+
 #: First-run compile time of the kernel, seconds, quoted in the message before a cold compile:
 #: measured 50-57 s CPU on a 2-core AVX-512 machine (2026-12-05) and 68-101 s on a 2-core AVX2
 #: one (2026-12-06; benchmarks/README.md, `python benchmarks/ab_kernel.py --compile-pairs`).
 COMPILE_ESTIMATE_S = 80
 _HEARTBEAT_S = 5.0  # seconds between the "still compiling" lines (issue 13: no silent phase over 10 s)
-_kernel_loaded = False
+_kernel_loaded: set = set()  # the kernels (numba dispatchers) this process has compiled or loaded
 
 
-def _kernel_cached() -> bool | None:
-    """Whether numba's cache holds the filter kernel for the current source (None: unknown)."""
+def _kernel_cached(kernel) -> bool | None:
+    """Whether numba's cache holds ``kernel`` (a numba dispatcher) for the current source (None: unknown)."""
     try:
-        return bool(_kernels.run_filters._cache._cache_file._load_index())
+        return bool(kernel._cache._cache_file._load_index())
     except AttributeError:  # numba's private cache API changed: cannot tell
         return None
 
 
 @contextmanager
-def _announce_compile():
-    """Say so on stderr when the first kernel call of the process will compile it (a cold
+def _announce_compile(kernel):
+    """Say so on stderr when the first kernel call of the process will compile ``kernel`` (a cold
     numba cache), print a heartbeat every 5 s while it does and how long it took."""
-    global _kernel_loaded
-    cached = False if _kernel_loaded else _kernel_cached()
-    if _kernel_loaded or cached:
-        _kernel_loaded = True
+    loaded = kernel in _kernel_loaded
+    cached = False if loaded else _kernel_cached(kernel)
+    if loaded or cached:
+        _kernel_loaded.add(kernel)
         yield
         return
     if cached is None:  # cannot tell: say something only if the call turns out to be long
         t0 = time.perf_counter()
         yield
-        _kernel_loaded = True
+        _kernel_loaded.add(kernel)
         if time.perf_counter() - t0 > 5.0:
             print(f"compiled or loaded the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
         return
-    where = numba.config.CACHE_DIR or os.path.join(os.path.dirname(_kernels.__file__), "__pycache__")
+    where = numba.config.CACHE_DIR or os.path.join(os.path.dirname(kernel.py_func.__code__.co_filename), "__pycache__")
     print(f"compiling the VIO filter (first run only, ~{COMPILE_ESTIMATE_S} s; cached in {where})",
           file=sys.stderr, flush=True)
     done = threading.Event()
@@ -129,7 +156,7 @@ def _announce_compile():
     finally:
         done.set()
         beat.join()
-    _kernel_loaded = True
+    _kernel_loaded.add(kernel)
     print(f"compiled the VIO filter in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
 
@@ -272,15 +299,23 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # default job's batches four ranges per thread idled a thread for ~10 % of the time
     # (`python benchmarks/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
+    L = block_size(n, n_threads)
+    if L:  # blocks of L filters in lock-step (avio/filter/lanes/), one task each
+        kernel, fns = _block.run_block, _native.functions(L)
+        tasks = [(lo, min(lo + L, n), L, seq, cal, settings, out, fns) for lo in range(0, n, L)]
+    else:  # numba's per-filter kernel, one task per filter
+        kernel = _kernels.run_filters
+        tasks = [(i, i + 1, seq, cal, settings, out) for i in range(n)] if n_threads > 1 else [(0, n, seq, cal,
+                                                                                                settings, out)]
     # Degenerate geometry of a wild candidate gives non-finite intermediate values, which the
     # kernel tests for and drops; the floating-point warnings carry no information.
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile():
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), _announce_compile(kernel):
         if n_threads == 1:
-            _kernels.run_filters(0, n, seq, cal, settings, out)
+            for task in tasks:
+                kernel(*task)
         else:
             with ThreadPoolExecutor(n_threads, thread_name_prefix="avio-filter") as pool:
-                jobs = [pool.submit(_kernels.run_filters, i, i + 1, seq, cal, settings, out) for i in range(n)]
-                for job in jobs:
+                for job in [pool.submit(kernel, *task) for task in tasks]:
                     job.result()
     o = out
     return FilterResult(o.p, o.R, o.v, o.diverged_at >= 0, o.diverged_at, o.n_updates, o.n_outliers, o.sigma, o.ba,

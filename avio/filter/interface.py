@@ -253,3 +253,64 @@ class UpdateWorkspaces(NamedTuple):
     measure: MeasureWorkspace
     noise: NoiseWorkspace
     outliers: OutlierWorkspace
+
+
+class LaneStates(NamedTuple):
+    """The filters of a lock-step block (avio/filter/lanes/block.py), lane l at index l: their
+    states and what each keeps between the stages of a frame (L lanes)."""
+
+    R: np.ndarray  #: (L, 3, 3) R_world_imu at the last frame
+    p: np.ndarray  #: (L, 3) m
+    v: np.ndarray  #: (L, 3) m/s
+    ba: np.ndarray  #: (L, 3) m/s^2
+    bg: np.ndarray  #: (L, 3) rad/s
+    cp: np.ndarray  #: (L, 2, 3) the clones' positions (frames k-2, k-1), m
+    cR: np.ndarray  #: (L, 2, 3, 3) their rotations
+    R_new: np.ndarray  #: (L, 3, 3) the predicted state
+    p_new: np.ndarray  #: (L, 3)
+    v_new: np.ndarray  #: (L, 3)
+    omega: np.ndarray  #: (L, 3) gyro minus bias at the frame time, rad/s
+    ba_s: np.ndarray  #: (L, 3) the biases before the frame (restored where it diverges)
+    bg_s: np.ndarray  #: (L, 3)
+    active: np.ndarray  #: (L,) bool: the lane runs a filter that has not diverged
+    k_stop: np.ndarray  #: (L,) int64: the frame its estimates stop at (N: none)
+    counts: np.ndarray  #: (L, 3) int64: this frame's usable, valid and used features
+    sums: np.ndarray  #: (L, 3): this frame's r^T R^-1 r, sum log det R_f over the inliers and NLL
+    stats: np.ndarray  #: (L, 2): this frame's NIS and pose trace (Eqs. 44, 55b)
+
+
+class LaneKeep(NamedTuple):
+    """What each lane's update keeps from its measurement stage to its last (features last, as
+    :class:`NoiseWorkspace`; L lanes)."""
+
+    ok: np.ndarray  #: (L, F) bool usable features
+    r: np.ndarray  #: (L, M, F) used residuals, px
+    J: np.ndarray  #: (L, M, 12, F) their Jacobians
+    Rm: np.ndarray  #: (L, M, M, F) covariances R_f, px^2
+    sd: np.ndarray  #: (L, M, F) standard deviations, px
+    Lm: np.ndarray  #: (L, M, M, F) Cholesky factors of R_f (upper triangle zero)
+    ldR: np.ndarray  #: (L, F) log det R_f
+    beta: np.ndarray  #: (L, 12) J^T R^-1 r
+
+
+class DenseLanes(NamedTuple):
+    """The dense phases' arrays of a lock-step block, lanes last (entry [a, b, l] of lane l), as
+    the C of avio/filter/lanes/ takes them."""
+
+    P: np.ndarray  #: (27, 27, L) covariances
+    Phi: np.ndarray  #: (15, 15, L) the interval's error transitions
+    T: np.ndarray  #: (15, 27, L) scratch of the prediction
+    U: np.ndarray  #: (15, 15, L)
+    C: np.ndarray  #: (12, 27, L) error state -> relative-pose errors
+    CP: np.ndarray  #: (12, 27, L) C P
+    PCt: np.ndarray  #: (27, 12, L) P C^T
+    Sig: np.ndarray  #: (12, 12, L) Sigma = C P C^T
+    Mx: np.ndarray  #: (12, 12, L) I + A Sigma, then its elimination
+    X: np.ndarray  #: (12, 13, L) [A | beta], then (I + A Sigma)^-1 [A | beta]
+    K: np.ndarray  #: (27, 12, L) gain rows
+    ra: np.ndarray  #: (12 L,) the solve's pivot row
+    rb: np.ndarray  #: (13 L,)
+    dx: np.ndarray  #: (27, L) the updates' corrections (Eq. 41)
+    J: np.ndarray  #: (6, 15, L) the slide's Jacobians of the new clones (Eq. 19)
+    NR: np.ndarray  #: (6, 27, L) the new clones' covariance rows
+    bad: np.ndarray  #: (L,) uint8: a non-finite covariance

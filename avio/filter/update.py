@@ -4,7 +4,7 @@ outlier rejection, Kalman update in information form, and the injection of the c
 Equations: docs/model.md, Sections "Noise model" to "Innovation statistics" (Eqs. 29, 34-46);
 the measurement chain and Jacobians are avio/filter/measurement.py (Eqs. 19-33). Called by
 :func:`avio.filter.kernels.run_filters`, once per filter and update frame, with workspaces
-allocated once per filter range."""
+allocated once per filter range, and in stages by avio/filter/lanes/block.py."""
 
 from __future__ import annotations
 
@@ -33,7 +33,6 @@ def _rotate(Rm, dtheta, E, T):
     copy2(Rm, T)
 
 
-
 @kernel_jit
 def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
     """Add the error-state correction dx (27,) to one filter's nominal state (local rotation
@@ -50,7 +49,6 @@ def inject(R, p, v, ba, bg, cp0, cR0, cp1, cR1, dx, E, T):
     _rotate(cR1, dx[24:27], E, T)
 
 
-
 @kernel_jit(allocates=True)
 def update_workspace(F):
     """Scratch arrays of :func:`update` for F features (allocated once per run;
@@ -62,7 +60,6 @@ def update_workspace(F):
         inl=np.empty(F, np.bool_), gate=np.empty(F, np.bool_), A=np.empty((d, d)), Mx=np.empty((d, d)),
         X=np.empty((d, d + 1)), K=np.empty((27, d)), dx=np.empty(27), CP=np.empty((d, 27)), E3=np.empty((3, 3)),
         T3=np.empty((3, 3)))
-
 
 
 @kernel_jit(allocates=True)
@@ -80,7 +77,6 @@ def noise_workspace(F):
                           beta=np.empty(12))
 
 
-
 @kernel_jit(allocates=True)
 def outlier_workspace(F):
     """Scratch arrays of the outlier tests of :func:`update` for F features
@@ -90,12 +86,8 @@ def outlier_workspace(F):
     return OutlierWorkspace(Lp=Lp, S=S, L=L, y=y, Y=Y, moved=moved, inlier=inlier, count=count)
 
 
-
 MODE_NONE, MODE_RANSAC, MODE_GATE, MODE_BOTH = 0, 1, 2, 3  # outlier rejection of update()
 LOG_2PI = np.log(2.0 * np.pi)
-
-
-
 #: The residuals the update uses, of the 4 of avio.filter.measurement (docs/model.md, Eq. 29):
 #: the 1-2 Sampson distance and the two transfer coordinates. A point seen in three images gives
 #: 3 independent constraints (6 measured coordinates minus its 3 coordinates): to first order
@@ -104,18 +96,13 @@ LOG_2PI = np.log(2.0 * np.pi)
 #: three on the default drive) and whitening all four would turn linearisation error into
 #: near-certain information.
 USED_RESIDUALS = (0, 2, 3)
-
-
-
-M = 3
-
+M = 3  # residuals used per feature
 
 
 #: R_f gets (NOISE_FLOOR * sigma)^2 on its diagonal (docs/model.md, Eq. 35): keeps it positive
 #: definite when a geometry makes two residuals react to the pixels in the same way (it changes
 #: no decision).
 NOISE_FLOOR = 0.01
-
 
 
 @kernel_jit
@@ -142,7 +129,6 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     log_det_lanes(Lm, ldR)
 
 
-
 @kernel_jit
 def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
@@ -150,41 +136,47 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     settings ``cfg`` (interface.Settings), the features uv (F, 3, 2) px and valid (F,) of the
     frame's triplet, omega (3,) rad/s the gyro minus the bias at the frame time.
 
-    Residuals and Jacobians of the F features uv (F, 3, 2) (invalid, non-finite, without
-    baseline or with a degenerate transfer: not used), each feature's measurement covariance
-    ``R_f = sigma_px^2 G G^T`` from the pixel noise (avio.filter.trifocal.feature_residuals), outlier
-    rejection (``mode``: MODE_* of this module) on the linearised measurement, then the Kalman
-    update. A transfer is degenerate when it amplifies the pixel noise more than
-    ``max_transfer_gain`` times (the line through m2 nearly through the epipole: tiny changes of
-    m1, m2 move the transferred point by hundreds of pixels, whatever the residual).
-    The measurement depends on the state only through the 12 relative-pose errors ``C dx``, so
-    gates and update work with ``Sigma = C P C^T`` (12x12) and J: ``P+ = P - P C^T (I + A
-    Sigma)^-1 A C P``, ``dx = P C^T (I + A Sigma)^-1 J^T R^-1 r`` with ``A = J^T R^-1 J`` — the
-    information form ``(P^-1 + H^T R^-1 H)^-1`` with ``H = J C``, at the price of a 12x12 solve.
-    The same factors give the innovation likelihood of the update (avio/objectives.py):
-    ``NIS = r^T S^-1 r = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta`` (Woodbury, ``beta =
-    J^T R^-1 r``) and ``log det S = log det R + log det(I + A Sigma)``.
-    Returns (used, rejected, nis, log_det_S, dof, nll, slots, pose_trace): the numbers of features
-    used and rejected, the update's NIS, log det S and residual count, its NLL contribution with the
-    capped terms of the valid features it did not use, the residual slots (M = 3 per valid
-    feature) and the pose's share of S, ``tr(J^T S^-1 J Sigma) = dof - tr(S^-1 R)`` (Eq. 55b).
-    With ``record`` the decisions go to ``decided`` (F,) (1: the feature was used).
-    ws: interface.UpdateWorkspaces of :func:`update_workspace`, measure_workspace,
-    :func:`noise_workspace` and :func:`outlier_workspace` (nothing is allocated here).
-    After the measurement, the per-feature steps run features last ((M, F), (M, 12, F) arrays,
-    avio/filter/outliers.py): every feature at once, in SIMD, with the operations of one feature alone.
-    Equations (docs/model.md): residuals and Jacobians Eqs. 19-33, noise Eqs. 34-36, outliers
-    Eqs. 37-39, update Eqs. 40-43, statistics Eqs. 44-46.
+    Residuals and Jacobians of the features (invalid, non-finite, without baseline or with a transfer
+    that amplifies the pixel noise more than ``max_transfer_gain`` times: not used), each one's
+    ``R_f = sigma_px^2 G G^T`` (avio.filter.trifocal.feature_residuals), outlier rejection (``mode``:
+    MODE_*), then the Kalman update in information form over the 12 relative-pose errors ``C dx``:
+    ``P+ = P - P C^T (I + A Sigma)^-1 A C P``, ``dx = P C^T (I + A Sigma)^-1 beta``, ``Sigma = C P C^T``,
+    ``A = J^T R^-1 J``, ``beta = J^T R^-1 r``; its likelihood (avio/objectives.py) from the same
+    factors: ``NIS = r^T R^-1 r - beta^T Sigma (I + A Sigma)^-1 beta`` (Woodbury), ``log det S = log
+    det R + log det(I + A Sigma)``. Returns (used, rejected, nis, log_det_S, dof, nll, slots,
+    pose_trace): features used and rejected, NIS, log det S, residual count, the NLL contribution
+    (with the capped terms of the valid features not used), the residual slots (M per valid
+    feature), the pose's share of S ``tr(J^T S^-1 J Sigma)`` (Eq. 55b). With ``record`` the
+    decisions go to ``decided`` (F,) (1: used). ws: interface.UpdateWorkspaces (nothing is
+    allocated here); the per-feature steps run features last, every feature at once in SIMD
+    (avio/filter/outliers.py). Eqs. 19-33 (measurement), 34-36 (noise), 37-39 (outliers), 40-43
+    (update), 44-46 (statistics). In stages, which avio/filter/lanes/block.py runs for a block of
+    filters in lock-step, the dense ones (:func:`project`, the solve, :func:`downdate`) for the whole
+    block at once: :func:`update_measure`, :func:`project`, :func:`update_information`, ``solve``,
+    :func:`update_statistics`, :func:`downdate`, :func:`inject`.
     """
+    u_ = ws.update
+    n_ok, n_valid = update_measure(x, omega, cal, i, uv, valid, cfg, ws)
+    project(u_.C, x.P, u_.CP, u_.PCt, u_.Sig)
+    used, rr, log_det_R, nll = update_information(valid, cfg, ws, record, decided)
+    solve(u_.Mx, u_.X)  # X = (I + A Sigma)^-1 [A | beta] (Eqs. 41-42)
+    nis, log_det_S, pose_trace = update_statistics(ws, rr, log_det_R)
+    downdate(x.P, u_.PCt, u_.X, u_.CP, u_.K)
+    # Eq. (8): the injection.
+    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, u_.dx, u_.E3, u_.T3)
+    return used, n_ok - used, nis, log_det_S, M * used, nll, M * n_valid, pose_trace
+
+
+@kernel_jit
+def update_measure(x, omega, cal, i, uv, valid, cfg, ws):
+    """Stage 1 of :func:`update`: the measurement of the F features (residuals, Jacobians, the chain C
+    into ``ws.update.C``), the usable features ``ws.update.ok`` and their noise model (ws.noise).
+    Returns (n_ok, n_valid): the usable and the valid features."""
     F, d = uv.shape[0], 12
-    u_, n_, o_ = ws.update, ws.noise, ws.outliers
-    r4, J4, C, PCt, Sig, t12, t13, HP, z = u_.r4, u_.J4, u_.C, u_.PCt, u_.Sig, u_.t12, u_.t13, u_.HP, u_.z
-    ok, inl, gate, A, Mx, X, K, dx, CP = u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X, u_.K, u_.dx, u_.CP
-    G4, r, J, Gp, Rm, sd, Lm, ldR, ldS = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
-    rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
+    u_, n_ = ws.update, ws.noise
+    r4, J4, C, t12, t13, ok = u_.r4, u_.J4, u_.C, u_.t12, u_.t13, u_.ok
+    G4, r, J, Gp, Rm, sd, Lm, ldR = n_.G4, n_.r, n_.J, n_.Gp, n_.Rm, n_.sd, n_.Lm, n_.ldR
     sigma_px, max_transfer_gain, min_parallax_m = cfg.sigma_px, cfg.max_transfer_gain, cfg.min_parallax_m
-    mode, chi2_threshold = cfg.mode, cfg.chi2_threshold
-    Pi = x.P
     # Eqs. (19)-(34): residuals r4, Jacobians J4 w.r.t. the relative-pose errors, pixel sensitivities
     # G4 and the chain C (H = J C).
     measure(x.R, x.p, x.v, x.cp0, x.cR0, x.cp1, x.cR1, omega, cal.td_s[i], cal.fx[i], cal.fy[i], cal.cx[i],
@@ -238,17 +230,39 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
                     J[a, b, f] = 0.0
                 for b in range(M):
                     Rm[a, b, f] = sigma_px * sigma_px if a == b else 0.0
+    return n_ok, n_valid
+
+
+@kernel_jit
+def project(C, P, CP, PCt, Sig):
+    """Stage 2 of :func:`update`, one filter: CP = C P (12, 27), PCt (27, 12) its transpose, Sigma
+    = C P C^T (12, 12), from C (12, 27) and P (27, 27) (Eq. 37; lock-step: avio/filter/lanes/lanes.c)."""
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
     # symmetric), Sigma = C P C^T (symmetrised; Eq. 37).
-    matmul(C, Pi, CP)
+    matmul(C, P, CP)
     for a in range(27):
-        for b in range(d):
+        for b in range(12):
             PCt[a, b] = CP[b, a]
     matmul(C, PCt, Sig)
-    for a in range(d):
+    for a in range(12):
         for b in range(a):
             s = 0.5 * (Sig[a, b] + Sig[b, a])
             Sig[a, b], Sig[b, a] = s, s
+
+
+@kernel_jit
+def update_information(valid, cfg, ws, record, decided):
+    """Stage 3 of :func:`update` (Sigma in ``ws.update.Sig``): the features' innovations, the NLL
+    score, the outlier rejection and the information sum over the inliers, which leaves
+    ``Mx = I + A Sigma`` and ``X = [A | beta]`` for the solve (Eqs. 37-42). Returns (used, rr,
+    log_det_R, nll): the inliers, r^T R^-1 r and sum log det R_f over them, the frame's NLL."""
+    F, d = valid.shape[0], 12
+    u_, n_, o_ = ws.update, ws.noise, ws.outliers
+    Sig, HP, z, ok, inl, gate, A, Mx, X = u_.Sig, u_.HP, u_.z, u_.ok, u_.inl, u_.gate, u_.A, u_.Mx, u_.X
+    r, J, Rm, sd, Lm, ldR, ldS = n_.r, n_.J, n_.Rm, n_.sd, n_.Lm, n_.ldR, n_.ldS
+    rw, Jw, jw_f, beta = n_.rw, n_.Jw, n_.jw_f, n_.beta
+    sigma_px, mode, chi2_threshold = cfg.sigma_px, cfg.mode, cfg.chi2_threshold
+    log_s2 = np.log(sigma_px * sigma_px)
     for f in range(F):
         inl[f] = ok[f]
     # Eq. (37): per feature S_f = J_f Sigma J_f^T + R_f, z_f = S_f^-1 r_f, log det S_f.
@@ -323,7 +337,16 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
         Mx[a, a] += 1.0
         for b in range(d):
             X[a, b] = A[a, b]
-    solve(Mx, X)
+    return used, rr, log_det_R, nll
+
+
+@kernel_jit
+def update_statistics(ws, rr, log_det_R):
+    """Stage 4 of :func:`update`, after the solve (X = (I + A Sigma)^-1 [A | beta], Mx its
+    elimination): log det S, NIS and the pose trace (Eqs. 44, 45, 55b), and the correction
+    ``ws.update.dx`` (Eq. 41). Returns (nis, log_det_S, pose_trace)."""
+    u_, d = ws.update, 12
+    Mx, X, Sig, PCt, dx, beta = u_.Mx, u_.X, u_.Sig, u_.PCt, u_.dx, ws.noise.beta
     # Eq. (45): log det S = sum_f log det R_f + log det(I + A Sigma).
     log_det_S = log_det_R
     for a in range(d):
@@ -340,20 +363,26 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     for a in range(d):
         for b in range(d):
             pose_trace += X[a, b] * Sig[b, a]
-    dof = M * used
     # Eq. (41): dx = P C^T (I + A Sigma)^-1 beta.
     for a in range(27):
         acc = 0.0
         for b in range(d):
             acc += PCt[a, b] * X[b, d]
         dx[a] = acc
+    return nis, log_det_S, pose_trace
+
+
+@kernel_jit
+def downdate(P, PCt, X, CP, K):
+    """Stage 5 of :func:`update`, one filter: P (27, 27) -= (PCt X[:, :12]) CP, K (27, 12) scratch
+    (Eq. 42; lock-step: avio/filter/lanes/lanes.c)."""
     # Eq. (42): P -= (PCt X[:, :12]) CP: the lower triangle, mirrored (P stays exactly symmetric).
     for a in range(27):
-        for b in range(d):
+        for b in range(12):
             K[a, b] = 0.0
-        for c in range(d):
+        for c in range(12):
             f = PCt[a, c]
-            for b in range(d):
+            for b in range(12):
                 K[a, b] += f * X[c, b]
     # Each entry's 12 terms are summed in a register (the loop over b, of fixed length, unrolls: the
     # loop over c vectorises), in the order of the row updates this replaced (issue 30); row a runs
@@ -362,12 +391,9 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     for a in range(27):
         n = min(27, (a // 8 + 1) * 8)
         for c in range(n):
-            acc = Pi[a, c]
+            acc = P[a, c]
             for b in range(12):
                 acc -= K[a, b] * CP[b, c]
-            Pi[a, c] = acc
+            P[a, c] = acc
         for c in range(a):
-            Pi[c, a] = Pi[a, c]
-    # Eq. (8): the injection.
-    inject(x.R, x.p, x.v, x.ba, x.bg, x.cp0, x.cR0, x.cp1, x.cR1, dx, u_.E3, u_.T3)
-    return used, n_ok - used, nis, log_det_S, dof, nll, M * n_valid, pose_trace
+            P[c, a] = P[a, c]

@@ -31,7 +31,8 @@ hydra_guard.install()  # here too for a launcher's worker, which imports this mo
 
 # settings that change how a job is shown or run, not what it computes: left out of its identity
 PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict", "log_metrics",
-                     "threads")
+                     "threads", "filter_block")
+FILTER_BLOCKS = (0, 1, 4, 8)  # avio.filter.batch.set_block: 0 numba's per-filter kernel, else the lock-step block
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
@@ -130,12 +131,24 @@ def threads_of(cfg: dict) -> int | None:
     return value
 
 
+def block_of(cfg: dict) -> int | None:
+    """The VIO filter's lock-step block (``filter_block``): one of FILTER_BLOCKS, or None for ``auto``
+    (avio.filter.batch.block_size); ConfigError naming the key otherwise."""
+    value = cfg.get("filter_block", "auto")
+    if value == "auto" or value is None:
+        return None
+    if isinstance(value, bool) or value not in FILTER_BLOCKS:
+        raise ConfigError(f"filter_block must be auto or one of {', '.join(map(str, FILTER_BLOCKS))}, got {value!r}")
+    return value
+
+
 def check_presentation(cfg: dict) -> None:
     """ConfigError naming the first invalid presentation setting (``progress_every_s``, ``log_metrics``,
-    ``threads``)."""
+    ``threads``, ``filter_block``)."""
     progress_every_s_of(cfg)
     log_metrics_of(cfg)
     threads_of(cfg)
+    block_of(cfg)
 
 
 def identity_of(cfg: dict) -> dict:
@@ -156,13 +169,15 @@ def optimizer_factory(cfg: dict, space):
     return lambda: cls(space.lower, space.upper, seed=seed, x0=space.reference, **params)
 
 
-def _apply_threads(n: int | None) -> None:
-    """Set the filter's thread count for this process's jobs (``threads``; auto: its default rule)."""
-    if n is None and "avio.filter.batch" not in sys.modules:
+def _apply_threads(n: int | None, block: int | None = None) -> None:
+    """Set the filter's thread count and lock-step block for this process's jobs (``threads``,
+    ``filter_block``; auto: their default rules)."""
+    if n is None and block is None and "avio.filter.batch" not in sys.modules:
         return  # auto and no filter loaded yet: nothing to restore, and no reason to import numba here
-    from avio.filter.batch import set_threads
+    from avio.filter.batch import set_block, set_threads
 
     set_threads(n)
+    set_block(block)
 
 
 def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
@@ -175,7 +190,7 @@ def run_configured_job(cfg: dict, job_dir: Path, label: str = "job") -> dict:
     identity = identity_of(cfg)
     try:
         import_plugins(cfg)
-        _apply_threads(threads_of(cfg))
+        _apply_threads(threads_of(cfg), block_of(cfg))
         print(f"{label}: building problem {cfg['problem']['name']}", file=sys.stderr, flush=True)
         try:
             problem = build_problem(cfg)

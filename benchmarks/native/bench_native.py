@@ -1,7 +1,8 @@
 """Does a compiled C kernel pay where numba's lock-step lanes did not, per filter or in lock-step? Issue
 30 leaves the route of a lock-step kernel open, "numba with non-aliasing arguments and SLP, or a compiled
 C/C++ kernel, chosen by a fair side-by-side measurement"; benchmarks/bench_layout.py measures the numba
-side. Here the phases of the update frame (benchmarks/native/covariance.c and update.c) run as
+side. Here the phases of the update frame (avio/filter/lanes/covariance.c and update.c, the C of the
+kernel's lock-step blocks) run as
 
 - ``numba``: the kernel's own code and compile (non-aliasing arguments, SLP; avio/filter/_simd.py);
 - ``numba lanes L``: bench_layout.py's L filters in lock-step, where it has them;
@@ -66,30 +67,31 @@ PHASES = ("prediction", "project", "information", "gain", "solve", "innovations"
 _PREFIX = {"prediction": "pred", "project": "proj", "information": "info", "gain": "gain", "solve": "solve",
            "innovations": "innov"}  # the phases' names in the C sources
 SOURCES = ("covariance.c", "update.c")
+SOURCE_DIR = HERE.parents[1] / "avio" / "filter" / "lanes"  # the kernel's own C (its lock-step blocks)
 #: update()'s statements of each phase: (parameters, the first statement's start, the last one's text, what the
 #: phase's function returns).
 UPDATE_PHASES = {
-    "project": ("C, Pi, CP, PCt, Sig", "matmul(C, Pi, CP)", "0.5 * (Sig[a, b] + Sig[b, a])", ""),
-    "information": ("A, beta, X, rw, Jw, jw_f, inl, ldR, record, decided", "A[:] = 0.0", "X[b, d] = beta[b]",
-                    "used, rr, log_det_R"),
-    "gain": ("Pi, PCt, X, CP, K", "for a in range(27):\n    for b in range(d):\n        K[a, b] = 0.0",
+    "project": ("project", "C, P, CP, PCt, Sig", "matmul(C, P, CP)", "0.5 * (Sig[a, b] + Sig[b, a])", ""),
+    "information": ("update_information", "A, beta, X, rw, Jw, jw_f, inl, ldR, record, decided", "A[:] = 0.0",
+                    "X[b, d] = beta[b]", "used, rr, log_det_R"),
+    "gain": ("downdate", "P, PCt, X, CP, K", "for a in range(27):\n    for b in range(12):\n        K[a, b] = 0.0",
              "acc -= K[a, b] * CP[b, c]", ""),
 }
 
 
 def kernel_phase(name: str, source: str | None = None):
-    """Phase ``name`` of avio.filter.update.update (UPDATE_PHASES) as a Python function: its statements,
-    from the first that starts with the phase's first text to the next that holds its last, taken from the
-    kernel's source (``source``: that module's text) with d = 12, M = 3, F the features and the kernel's
-    helpers in scope. SystemExit when the kernel no longer has them."""
-    params, first, last, returns = UPDATE_PHASES[name]
+    """Phase ``name`` of the update (UPDATE_PHASES: the stage function of avio/filter/update.py it is in) as a
+    Python function: its statements, from the first that starts with the phase's first text to the next that
+    holds its last, taken from the kernel's source (``source``: that module's text) with d = 12, M = 3, F the
+    features and the kernel's helpers in scope. SystemExit when the kernel no longer has them."""
+    function, params, first, last, returns = UPDATE_PHASES[name]
     tree = ast.parse(source if source is not None else Path(update_module.__file__).read_text())
-    body = next((n.body for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "update"), [])
+    body = next((n.body for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == function), [])
     code = [ast.unparse(n) for n in body]
     start = next((i for i, c in enumerate(code) if c.startswith(first)), None)
     end = None if start is None else next((i for i in range(start, len(code)) if last in code[i]), None)
     if end is None:
-        raise SystemExit(f"bench_native.py: avio/filter/update.py's update() no longer has the phase {name!r} (from "
+        raise SystemExit(f"bench_native.py: avio/filter/update.py's {function}() no longer has the phase {name!r} (from "
                          f"{first.splitlines()[0]!r} to {last!r}): update UPDATE_PHASES here")
     lines = ["d, M = 12, 3", "F = inl.shape[0]" if "inl" in params else "", *code[start:end + 1],
              f"return {returns}" if returns else ""]
@@ -110,7 +112,7 @@ def compiler() -> str:
 def build(out_dir: Path) -> tuple[ctypes.CDLL, str]:
     """The C sources compiled into out_dir: the loaded library and the compiler's assembly."""
     cc = compiler()
-    lib, sources = out_dir / "native.so", [str(HERE / name) for name in SOURCES]
+    lib, sources = out_dir / "native.so", [str(SOURCE_DIR / name) for name in SOURCES]
     commands = [[cc, *FLAGS, "-o", str(lib), *sources, "-lm"],
                 *([cc, *FLAGS[:-2], "-S", "-o", str(out_dir / f"{Path(src).stem}.s"), src] for src in sources)]
     for command in commands:

@@ -79,7 +79,7 @@ def test_a_key_the_config_does_not_have_is_refused_naming_the_nearest(tmp_path, 
     out = capsys.readouterr()
     assert out.out == "" and len(out.err.strip().splitlines()) == 1
     assert out.err.startswith(f"error: {override}: the config has no key {key!r}")
-    assert f"did you mean {nearest}?" in out.err and "Top-level keys: budget, instance, log_metrics, optimizer" in out.err
+    assert f"did you mean {nearest}?" in out.err and "Top-level keys: budget, filter_block, instance, log_metrics, optimizer" in out.err
     assert not (tmp_path / "sweep").exists()
 
 

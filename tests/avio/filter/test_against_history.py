@@ -21,6 +21,8 @@ from test_filter import make_circle_sequence
 
 from avio.calibration import Calibration
 from avio.filter import FilterConfig, prepare, run, set_threads
+from avio.filter.batch import set_block
+from avio.filter.lanes import native
 
 #: The commit whose filter today's must equal bit for bit (full sha; ``git log -1 --format=%H``).
 #: Move it forward only to a commit whose outputs were checked equal to the previous pin's, or
@@ -42,6 +44,7 @@ def ref():
     yield pkg
     importlib.import_module(f"{pkg.__name__}.filter").set_threads(None)
     set_threads(None)
+    set_block(None)
 
 
 def compiled_reference():
@@ -89,7 +92,13 @@ def _reference(ref, seq, cal, record_used=False, **config):
     return _arrays(filt.run(seq, _frozen_cal(ref, cal), cfg, filt.prepare(seq, cfg), record_used=record_used))
 
 
-def test_same_bits_as_the_reference_commit_at_every_batch_size_and_thread_count(ref):
+#: The kernels compared: numba's per-filter one (0) and the lock-step blocks of the C (avio/filter/lanes/).
+BLOCKS = [0, *(pytest.param(L, marks=pytest.mark.skipif(native.unavailable() is not None, reason=f"no C kernel: "
+                                                         f"{native.unavailable()}")) for L in native.BLOCK_SIZES)]
+
+
+@pytest.mark.parametrize("block", BLOCKS)
+def test_same_bits_as_the_reference_commit_at_every_batch_size_and_thread_count(ref, block):
     seq = make_circle_sequence(40, seed=3, pixel_noise_px=0.5, outlier_fraction=0.1)
     # A speed limit just above the drive's 7.004 m/s: some calibrations diverge mid-run.
     config = {"divergence_max_speed_mps": 7.02}
@@ -101,11 +110,12 @@ def test_same_bits_as_the_reference_commit_at_every_batch_size_and_thread_count(
     cfg = FilterConfig(**config)
     prep = prepare(seq, cfg)
     batches = {1: [7], 3: [6, 0, 4], 8: list(range(8))}  # the wild one alone; a reordered three; all
+    set_block(block)  # a block of 4 or 8 runs the batch of 3 in one partly empty block
     for n_threads in (1, 2):
         set_threads(n_threads)
         for size, idx in batches.items():
             got = run(seq, _subset(cal, idx), cfg, prep, record_used=True)
-            _assert_same_bits(got, want, idx, f"batch {size}, {n_threads} thread(s)")
+            _assert_same_bits(got, want, idx, f"block {block}, batch {size}, {n_threads} thread(s)")
 
 
 @pytest.mark.slow
@@ -117,7 +127,9 @@ def test_same_bits_as_the_reference_commit_in_every_outlier_mode(ref, mode):
     want = _reference(ref, seq, cal, **config)
     set_threads(2)
     cfg = FilterConfig(**config)
-    _assert_same_bits(run(seq, cal, cfg, prepare(seq, cfg)), want, slice(None), f"circle, {mode}")
+    for block in (0, None):  # numba's per-filter kernel; the default blocks (4 on 2 threads)
+        set_block(block)
+        _assert_same_bits(run(seq, cal, cfg, prepare(seq, cfg)), want, slice(None), f"circle, {mode}, block {block}")
 
 
 @pytest.mark.slow
@@ -132,8 +144,10 @@ def test_same_bits_as_the_reference_commit_on_kitti00(ref, shared_data):
         want = _reference(ref, seq, cal, **config)
         set_threads(2)
         cfg = FilterConfig(**config)
-        got = run(seq, cal, cfg, prepare(seq, cfg))
-        _assert_same_bits(got, want, slice(None), f"kitti00 15-796, {config}")
+        for block in (0, None):
+            set_block(block)
+            got = run(seq, cal, cfg, prepare(seq, cfg))
+            _assert_same_bits(got, want, slice(None), f"kitti00 15-796, {config}, block {block}")
     assert np.all(got.diverged_at_frame > 0) | np.isnan(cal.fx_px).any()
 
 

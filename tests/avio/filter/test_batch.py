@@ -95,29 +95,36 @@ def test_set_threads_refuses_bad_counts():
 def test_a_cold_compile_is_announced_with_a_heartbeat_and_its_duration(monkeypatch, capsys):
     import time
 
-    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
-    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: False)
+    kernel = avio_filter._kernels.run_filters
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", set())
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda k: False)
     monkeypatch.setattr(avio_filter, "_HEARTBEAT_S", 0.02)
-    with avio_filter._announce_compile():
+    with avio_filter._announce_compile(kernel):
         time.sleep(0.1)
     err = capsys.readouterr().err
     assert f"compiling the VIO filter (first run only, ~{avio_filter.COMPILE_ESTIMATE_S} s" in err
     assert "still compiling the VIO filter" in err
     assert "compiled the VIO filter in" in err
     # Once loaded (or with a warm cache), nothing is printed.
-    with avio_filter._announce_compile():
+    with avio_filter._announce_compile(kernel):
         pass
-    monkeypatch.setattr(avio_filter, "_kernel_loaded", False)
-    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda: True)
-    with avio_filter._announce_compile():
+    monkeypatch.setattr(avio_filter, "_kernel_loaded", set())
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda k: True)
+    with avio_filter._announce_compile(kernel):
         pass
     assert capsys.readouterr().err == ""
+    # Each kernel is announced on its own: the lock-step one after the per-filter one was loaded.
+    monkeypatch.setattr(avio_filter, "_kernel_cached", lambda k: False)
+    with avio_filter._announce_compile(avio_filter._block.run_block):
+        pass
+    assert "compiling the VIO filter" in capsys.readouterr().err
 
 
 def test_the_kernel_cache_is_recognised_once_compiled():
     seq = make_circle_sequence(8, seed=0)
     run(seq, seq.truth_calibration, FilterConfig())
-    assert avio_filter._kernel_cached() is True
+    used = avio_filter._block.run_block if avio_filter.block_size(1, 1) else avio_filter._kernels.run_filters
+    assert avio_filter._kernel_cached(used) is True
 
 
 def test_joblib_workers_default_to_cores_over_workers():

@@ -11,6 +11,9 @@
 #include <math.h>
 #include <string.h>
 
+/* each phase is inlined into both its callers: the kernel's entry (lanes_*) and the benchmark's loop (*_calls) */
+#define INLINE static inline __attribute__((always_inline))
+
 static void solve_one(double *restrict A, double *restrict B) {
     const int m = 12, k = 13;
     for (int c = 0; c < m; c++) {
@@ -93,7 +96,7 @@ void info_calls(double *A, double *beta, double *X, const double *rw, const doub
 
 /* L filters in lock-step. */
 #define SOLVE_LANES(L)                                                                                             \
-static void solve_lanes_##L(double *restrict A, double *restrict B, double *restrict ra, double *restrict rb) { \
+INLINE void solve_lanes_##L(double *restrict A, double *restrict B, double *restrict ra, double *restrict rb) { \
     const int m = 12, k = 13;                                                                                \
     for (int c = 0; c < m; c++) {                                                                            \
         int piv[L]; double big[L], inv[L], f[L];                                                             \
@@ -147,8 +150,10 @@ void solve_lanes_calls_##L(const double *A0, const double *B0, double *A, double
         memcpy(B, B0, 12 * 13 * L * sizeof(double));                                                         \
         solve_lanes_##L(A, B, ra, rb);                                                                       \
     }                                                                                                        \
-}
+}                                                                                                            \
+void lanes_solve_##L(double *A, double *B, double *ra, double *rb) { solve_lanes_##L(A, B, ra, rb); }
 
+SOLVE_LANES(1)
 SOLVE_LANES(4)
 SOLVE_LANES(8)
 
@@ -283,3 +288,35 @@ void innov_calls(const double *r, const double *H, const double *P, const double
                  double *logdet, double *Lp, double *S, double *L, double *y, long F, long n) {
     for (long k = 0; k < n; k++) innov_one(r, H, P, Rm, B, z, logdet, Lp, S, L, y, (int)F);
 }
+
+/* stats: after the solve, the update's NIS and pose trace and its correction for L filters (avio.filter.
+ *        update.update_statistics, Eqs. 41, 44, 55b): Sig (12, 12), X (12, 13), PCt (27, 12) lanes last,
+ *        beta (L, 12) and sums (L, 3) (r^T R^-1 r first) lanes first; out dx (27, L) and res (L, 2): NIS, the
+ *        pose trace. (log det S stays in numba: a log per pivot.) */
+#define STATS_LANES(L)                                                                                         \
+void lanes_stats_##L(const double *restrict Sig, const double *restrict X, const double *restrict PCt,         \
+                     const double *restrict beta, const double *restrict sums, double *restrict dx,          \
+                     double *restrict res) {                                                                 \
+    double nis[L], tr[L], acc[L];                                                                            \
+    for (int l = 0; l < L; l++) { nis[l] = sums[l * 3]; tr[l] = 0.0; }                                       \
+    for (int a = 0; a < 12; a++) {                                                                           \
+        for (int l = 0; l < L; l++) acc[l] = 0.0;                                                            \
+        for (int b = 0; b < 12; b++)                                                                         \
+            for (int l = 0; l < L; l++) acc[l] += Sig[(a * 12 + b) * L + l] * X[(b * 13 + 12) * L + l];     \
+        for (int l = 0; l < L; l++) nis[l] -= beta[l * 12 + a] * acc[l];                                     \
+    }                                                                                                        \
+    for (int a = 0; a < 12; a++)                                                                             \
+        for (int b = 0; b < 12; b++)                                                                         \
+            for (int l = 0; l < L; l++) tr[l] += X[(a * 13 + b) * L + l] * Sig[(b * 12 + a) * L + l];       \
+    for (int a = 0; a < 27; a++) {                                                                           \
+        for (int l = 0; l < L; l++) acc[l] = 0.0;                                                            \
+        for (int b = 0; b < 12; b++)                                                                         \
+            for (int l = 0; l < L; l++) acc[l] += PCt[(a * 12 + b) * L + l] * X[(b * 13 + 12) * L + l];     \
+        for (int l = 0; l < L; l++) dx[a * L + l] = acc[l];                                                  \
+    }                                                                                                        \
+    for (int l = 0; l < L; l++) { res[l * 2] = nis[l]; res[l * 2 + 1] = tr[l]; }                             \
+}
+
+STATS_LANES(1)
+STATS_LANES(4)
+STATS_LANES(8)

@@ -12,6 +12,9 @@
  * Each *_calls function repeats its phase n times on the same arrays (the timing loop). */
 #include <string.h>
 
+/* each phase is inlined into both its callers: the kernel's entry (lanes_*) and the benchmark's loop (*_calls) */
+#define INLINE static inline __attribute__((always_inline))
+
 #define PHI_ROWS(I, N, Q_OF, PHI, X_AT, OUT_AT, LANE)                                                        \
     for (int i = 0; i < 3; i++)                                                                              \
         for (int b = 0; b < N; b++) {                                                                        \
@@ -128,7 +131,7 @@ void proj_calls(const double *C, const double *P, double *CP, double *PCt, doubl
 
 /* L filters in lock-step. */
 #define COV_LANES(L)                                                                                             \
-static void pred_lanes_##L(double *restrict P, const double *restrict Phi, const double *restrict Qd,        \
+INLINE void pred_lanes_##L(double *restrict P, const double *restrict Phi, const double *restrict Qd,        \
                            double *restrict T, double *restrict U) {                                         \
     enum { NL = L };  /* the lane count in the PHI_ROWS macros' index expressions */                         \
     PHI_ROWS(i, 27, Q0, PHIL, PL_AT, TL_AT, for (int l = 0; l < L; l++))                                     \
@@ -146,7 +149,10 @@ static void pred_lanes_##L(double *restrict P, const double *restrict Phi, const
 void pred_lanes_calls_##L(double *P, const double *Phi, const double *Qd, double *T, double *U, long n) {    \
     for (long k = 0; k < n; k++) pred_lanes_##L(P, Phi, Qd, T, U);                                           \
 }                                                                                                            \
-static void gain_lanes_##L(double *restrict P, const double *restrict PCt, const double *restrict X,         \
+void lanes_pred_##L(double *P, const double *Phi, const double *Qd, double *T, double *U) {                  \
+    pred_lanes_##L(P, Phi, Qd, T, U);  /* the kernel's entry (avio/filter/lanes/block.py) */                 \
+}                                                                                                            \
+INLINE void gain_lanes_##L(double *restrict P, const double *restrict PCt, const double *restrict X,         \
                            const double *restrict CP, double *restrict K) {                                  \
     for (int a = 0; a < 27; a++) {                                                                           \
         for (int b = 0; b < 12; b++)                                                                         \
@@ -170,6 +176,9 @@ static void gain_lanes_##L(double *restrict P, const double *restrict PCt, const
 }                                                                                                            \
 void gain_lanes_calls_##L(double *P, const double *PCt, const double *X, const double *CP, double *K, long n) { \
     for (long k = 0; k < n; k++) gain_lanes_##L(P, PCt, X, CP, K);                                           \
+}                                                                                                            \
+void lanes_gain_##L(double *P, const double *PCt, const double *X, const double *CP, double *K) {            \
+    gain_lanes_##L(P, PCt, X, CP, K);                                                                        \
 }
 
 #define PHIL(a, c) Phi[((a) * 15 + (c)) * NL + l]
@@ -177,6 +186,7 @@ void gain_lanes_calls_##L(double *P, const double *PCt, const double *X, const d
 #define TL_AT(a, b) T[((a) * 27 + (b)) * NL + l]
 #define UL_AT(a, b) U[((a) * 15 + (b)) * NL + l]
 
+COV_LANES(1)
 COV_LANES(4)
 COV_LANES(8)
 
@@ -198,7 +208,7 @@ static void matmul_lanes_##L(const double *restrict A, const double *restrict B,
         }                                                                                                    \
     }                                                                                                        \
 }                                                                                                            \
-static void proj_lanes_##L(const double *restrict C, const double *restrict P, double *restrict CP,          \
+INLINE void proj_lanes_##L(const double *restrict C, const double *restrict P, double *restrict CP,          \
                            double *restrict PCt, double *restrict Sig) {                                     \
     matmul_lanes_##L(C, P, CP, 27);                                                                          \
     for (int a = 0; a < 27; a++)                                                                             \
@@ -215,7 +225,69 @@ static void proj_lanes_##L(const double *restrict C, const double *restrict P, d
 }                                                                                                            \
 void proj_lanes_calls_##L(const double *C, const double *P, double *CP, double *PCt, double *Sig, long n) {  \
     for (long k = 0; k < n; k++) proj_lanes_##L(C, P, CP, PCt, Sig);                                         \
+}                                                                                                            \
+void lanes_proj_##L(const double *C, const double *P, double *CP, double *PCt, double *Sig) {                \
+    proj_lanes_##L(C, P, CP, PCt, Sig);                                                                      \
 }
 
+PROJ_LANES(1)
 PROJ_LANES(4)
 PROJ_LANES(8)
+
+/* The kernel's lock-step phases that have no per-filter benchmark variant (avio/filter/lanes/block.py):
+ * slide:  the window's move of L filters (avio.filter.kernels.slide, Eq. 50), P (27, 27) in place from J
+ *         (6, 15) the new clone's Jacobian; scratch NR (6, 27). A lane's zero of J keeps its sum (a select).
+ * finite: bad[l] = 1 where lane l's P has a non-finite entry (the first test of avio.filter.kernels._bad). */
+#define SLIDE_LANES(L)                                                                                           \
+void lanes_slide_##L(double *restrict P, const double *restrict J, double *restrict NR) {                      \
+    for (int a = 0; a < 6; a++) {                                                                            \
+        for (int b = 0; b < 27 * L; b++) NR[a * 27 * L + b] = 0.0;                                           \
+        for (int c = 0; c < 15; c++) {                                                                       \
+            int nz = 0;                                                                                      \
+            double f[L];                                                                                     \
+            for (int l = 0; l < L; l++) { f[l] = J[(a * 15 + c) * L + l]; nz |= f[l] != 0.0; }               \
+            if (!nz) continue;  /* a column zero in every lane */                                            \
+            for (int b = 0; b < 27; b++)                                                                     \
+                for (int l = 0; l < L; l++) {                                                                \
+                    double old = NR[(a * 27 + b) * L + l], t = old + f[l] * P[(c * 27 + b) * L + l];         \
+                    NR[(a * 27 + b) * L + l] = f[l] != 0.0 ? t : old;                                        \
+                }                                                                                            \
+        }                                                                                                    \
+        for (int b = 15; b < 21; b++)                                                                        \
+            for (int l = 0; l < L; l++) NR[(a * 27 + b) * L + l] = NR[(a * 27 + b + 6) * L + l];             \
+    }                                                                                                        \
+    /* clone k-1 (rows and columns 21:27) moves to 15:21, each entry read before it is written */            \
+    for (int a = 0; a < 15; a++)                                                                             \
+        for (int b = 15; b < 21; b++)                                                                        \
+            for (int l = 0; l < L; l++) P[(a * 27 + b) * L + l] = P[(a * 27 + b + 6) * L + l];               \
+    for (int a = 15; a < 21; a++) {                                                                          \
+        for (int b = 0; b < 15; b++)                                                                         \
+            for (int l = 0; l < L; l++) P[(a * 27 + b) * L + l] = P[((a + 6) * 27 + b) * L + l];             \
+        for (int b = 15; b < 21; b++)                                                                        \
+            for (int l = 0; l < L; l++) P[(a * 27 + b) * L + l] = P[((a + 6) * 27 + b + 6) * L + l];         \
+    }                                                                                                        \
+    for (int a = 0; a < 6; a++) {                                                                            \
+        for (int b = 0; b < 21; b++)                                                                         \
+            for (int l = 0; l < L; l++) {                                                                    \
+                P[((21 + a) * 27 + b) * L + l] = NR[(a * 27 + b) * L + l];                                   \
+                P[(b * 27 + 21 + a) * L + l] = NR[(a * 27 + b) * L + l];                                     \
+            }                                                                                                \
+        for (int b = 0; b < 6; b++) {                                                                        \
+            double acc[L];                                                                                   \
+            for (int l = 0; l < L; l++) acc[l] = 0.0;                                                        \
+            for (int c = 0; c < 15; c++)                                                                     \
+                for (int l = 0; l < L; l++) acc[l] += NR[(a * 27 + c) * L + l] * J[(b * 15 + c) * L + l];    \
+            for (int l = 0; l < L; l++) P[((21 + a) * 27 + 21 + b) * L + l] = acc[l];                        \
+        }                                                                                                    \
+    }                                                                                                        \
+}                                                                                                            \
+void lanes_finite_##L(const double *restrict P, unsigned char *restrict bad) {                                 \
+    unsigned char nf[L] = {0};                                                                               \
+    for (int e = 0; e < 27 * 27; e++)  /* x - x is NaN exactly for inf and NaN */                            \
+        for (int l = 0; l < L; l++) nf[l] |= (P[e * L + l] - P[e * L + l]) != 0.0;                           \
+    for (int l = 0; l < L; l++) bad[l] = nf[l];                                                              \
+}
+
+SLIDE_LANES(1)
+SLIDE_LANES(4)
+SLIDE_LANES(8)
