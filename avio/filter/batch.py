@@ -93,6 +93,11 @@ def set_block(n: int | None = None) -> int | None:
     return _BLOCK
 
 
+def block_setting() -> int | str:
+    """:func:`set_block`'s setting: 0, 1, 4, 8, or "auto"."""
+    return "auto" if _BLOCK is None else _BLOCK
+
+
 def block_size(n: int, n_threads: int) -> int:
     """The lock-step block size for a batch of n on n_threads: :func:`set_block`'s, else the largest
     of 8 and 4 that every thread fills at least once (8 at batch 64 on 2 threads:

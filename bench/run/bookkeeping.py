@@ -86,9 +86,11 @@ def _name(value):
 def job_record(identity: dict, job_key: str | None, config_hash_: str, code: dict | None, status: str,
                 error: dict | None, budget, config: dict, problem_fields: dict, outcome: dict) -> dict:
     """The job's ``record.json``: its keys and identity, how it ended, its problem and what it found;
-    a problem's ``filter_threads`` goes to ``machine`` (its timings depend on it, its results do not)."""
+    a problem's ``filter_threads`` and ``filter_kernel`` go to ``machine`` (its timings depend on them, its
+    results do not)."""
     problem_fields = dict(problem_fields)
     threads = problem_fields.pop("filter_threads", None)
+    kernel = problem_fields.pop("filter_kernel", None)
     record = {
         "schema": SCHEMA,
         "job_key": job_key,
@@ -109,7 +111,18 @@ def job_record(identity: dict, job_key: str | None, config_hash_: str, code: dic
     }
     if threads is not None:  # a copy: provenance() is computed once per process
         record["machine"] = {**record["machine"], "filter_threads": threads}
+    if kernel is not None:
+        record["machine"] = {**record["machine"], "filter_kernel": kernel}
     return record
+
+
+def _filter_kernel() -> dict:
+    """A VIO problem's machine.filter_kernel: the lock-step block setting (avio.filter.batch.set_block,
+    "auto" for its default rule) and whether the C kernel is available (else numba's per-filter one)."""
+    from avio.filter.batch import block_setting
+    from avio.filter.lanes import native
+
+    return {"block": block_setting(), "native": native.unavailable() is None}
 
 
 def problem_fields(problem: Problem) -> dict:
@@ -128,6 +141,7 @@ def problem_fields(problem: Problem) -> dict:
         "f_reference": getattr(problem, "f_reference", None),
         "problem_identity": problem.identity,
         **({"filter_threads": problem.filter_threads} if hasattr(problem, "filter_threads") else {}),
+        **({"filter_kernel": _filter_kernel()} if hasattr(problem, "filter_threads") else {}),
     }
 
 

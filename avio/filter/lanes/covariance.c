@@ -54,7 +54,7 @@
 #define T_AT(a, b) T[(a) * 27 + (b)]
 #define U_AT(a, b) U[(a) * 15 + (b)]
 
-static void pred_one(double *restrict P, const double *restrict Phi, const double *restrict Qd,
+INLINE void pred_one(double *restrict P, const double *restrict Phi, const double *restrict Qd,
                      double *restrict T, double *restrict U) {
     PHI_ROWS(i, 27, Q0, PHI1, P_AT, T_AT, ONE)
     for (int a = 0; a < 15; a++)
@@ -71,7 +71,7 @@ void pred_calls(double *P, const double *Phi, const double *Qd, double *T, doubl
     for (long k = 0; k < n; k++) pred_one(P, Phi, Qd, T, U);
 }
 
-static void gain_one(double *restrict P, const double *restrict PCt, const double *restrict X,
+INLINE void gain_one(double *restrict P, const double *restrict PCt, const double *restrict X,
                      const double *restrict CP, double *restrict K) {
     for (int a = 0; a < 27; a++) {
         for (int b = 0; b < 12; b++) K[a * 12 + b] = 0.0;
@@ -111,7 +111,7 @@ static void matmul_skip(const double *restrict A, const double *restrict B, doub
     }
 }
 
-static void proj_one(const double *restrict C, const double *restrict P, double *restrict CP,
+INLINE void proj_one(const double *restrict C, const double *restrict P, double *restrict CP,
                      double *restrict PCt, double *restrict Sig) {
     matmul_skip(C, P, CP, 27);
     for (int a = 0; a < 27; a++)
@@ -186,7 +186,6 @@ void lanes_gain_##L(double *P, const double *PCt, const double *X, const double 
 #define TL_AT(a, b) T[((a) * 27 + (b)) * NL + l]
 #define UL_AT(a, b) U[((a) * 15 + (b)) * NL + l]
 
-COV_LANES(1)
 COV_LANES(4)
 COV_LANES(8)
 
@@ -230,9 +229,17 @@ void lanes_proj_##L(const double *C, const double *P, double *CP, double *PCt, d
     proj_lanes_##L(C, P, CP, PCt, Sig);                                                                      \
 }
 
-PROJ_LANES(1)
 PROJ_LANES(4)
 PROJ_LANES(8)
+
+/* A block of one filter runs the per-filter code: the lane loops of one lane would not vectorise. */
+void lanes_pred_1(double *P, const double *Phi, const double *Qd, double *T, double *U) { pred_one(P, Phi, Qd, T, U); }
+void lanes_proj_1(const double *C, const double *P, double *CP, double *PCt, double *Sig) {
+    proj_one(C, P, CP, PCt, Sig);
+}
+void lanes_gain_1(double *P, const double *PCt, const double *X, const double *CP, double *K) {
+    gain_one(P, PCt, X, CP, K);
+}
 
 /* The kernel's lock-step phases that have no per-filter benchmark variant (avio/filter/lanes/block.py):
  * slide:  the window's move of L filters (avio.filter.kernels.slide, Eq. 50), P (27, 27) in place from J

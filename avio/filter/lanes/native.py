@@ -4,9 +4,10 @@ compiler on first use and loaded with ctypes.
 Built once per machine and source: ``$CC`` (else ``cc``) with :data:`FLAGS` into
 ``<cache>/lanes-<key>.so``, the key a hash of the sources, the flags, the compiler's version and the
 host CPU (``-march=native``: a library built on one CPU is never loaded on another). The cache is
-``$AVIO_NATIVE_CACHE``, else avio/filter/lanes/__pycache__ where it is writable, else
-``~/.cache/avio``. The library is written under a temporary name and renamed, so processes building
-at once (pytest-xdist, a SLURM array) never load a half-written file. Where it cannot be built
+``$AVIO_NATIVE_CACHE``, else numba's ``$NUMBA_CACHE_DIR`` (beside the compiled kernel), else
+avio/filter/lanes/__pycache__ where it is writable, else ``~/.cache/avio``. The library is written
+under a temporary name and renamed, so processes building at once (pytest-xdist, a SLURM array)
+never load a half-written file. Where it cannot be built
 (no compiler, a failed compile) or ``AVIO_NATIVE=0``, :func:`unavailable` says why and the filter runs
 numba's per-filter kernel (avio/filter/kernels.py), with the same bits, more slowly at large batches.
 """
@@ -58,7 +59,7 @@ def _compiler() -> str | None:
 
 def _cache_dir() -> Path:
     """Where the library is kept (module docstring)."""
-    for candidate in (os.environ.get("AVIO_NATIVE_CACHE"), HERE / "__pycache__",
+    for candidate in (os.environ.get("AVIO_NATIVE_CACHE"), os.environ.get("NUMBA_CACHE_DIR"), HERE / "__pycache__",
                       Path.home() / ".cache" / "avio"):
         if candidate:
             path = Path(candidate)

@@ -1,6 +1,7 @@
 """Today's filter gives, to the bit, every output of the filter of a pinned commit taken from the
-git history (tests/avio/filter/git_reference.py): at batch sizes 1, 3 and 8 and 1 or 2 threads,
-for every outlier mode, on a short simulated drive (and on kitti00 15-796 with the real data).
+git history (tests/avio/filter/git_reference.py): numba's per-filter kernel and the lock-step blocks of
+1, 4 and 8 filters (avio/filter/lanes/), at batch sizes 1, 3 and 8 and 1 or 2 threads, for every
+outlier mode, on a short simulated drive (and on kitti00 15-796 with the real data).
 
 The reference is frozen: the whole avio package of that commit, imported under a private name,
 kernel, preparation and geometry included (the 799-line copy of the 958a2e6 kernel this replaces

@@ -344,18 +344,23 @@ def test_a_lever_arm_that_buys_updates_in_the_braking_frames_does_not_win_the_li
 
 
 def test_the_record_names_the_threads_the_filter_ran_on_and_an_analytic_one_none(tmp_path, problem):
-    from avio.filter.batch import set_threads
+    from avio.filter.batch import set_block, set_threads
+    from avio.filter.lanes import native
     from bench.problems.analytic import sphere as make_sphere
 
     try:
-        for n in (1, 2):
+        for n, block in ((1, None), (2, 0)):
             set_threads(n)
+            set_block(block)
             record = run_job(problem, lambda: RandomSearch(problem.space.lower, problem.space.upper, seed=0),
                              Budget(evals=2), tmp_path / f"vio{n}", {"threads": n}, progress=False)
             assert record["status"] == "ok" and record["machine"]["filter_threads"] == min(n, os.cpu_count() or 1)
+            assert record["machine"]["filter_kernel"] == {"block": "auto" if block is None else block,
+                                                          "native": native.unavailable() is None}
     finally:
         set_threads(None)
+        set_block(None)
     sphere = make_sphere()
     record = run_job(sphere, lambda: RandomSearch(sphere.space.lower, sphere.space.upper, seed=0), Budget(evals=2),
                      tmp_path / "sphere", {"problem": "sphere"}, progress=False)
-    assert "filter_threads" not in record["machine"]
+    assert "filter_threads" not in record["machine"] and "filter_kernel" not in record["machine"]
