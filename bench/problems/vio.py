@@ -45,9 +45,8 @@ from typing import ClassVar
 import numpy as np
 
 from avio.calibration import Calibration, calibration_errors
-from avio.filter.batch import block_setting, run, threads
+from avio.filter.batch import run, threads
 from avio.filter.config import FilterConfig, FilterError, FilterResult
-from avio.filter.lanes import native
 from avio.filter.prepare import prepare
 from avio.metrics import drift_metrics, pose_errors
 from avio.objectives import (
@@ -301,12 +300,6 @@ class VioProblem:
     @property
     def filter_threads(self) -> int:  # the threads a batch runs on now: the record's machine.filter_threads
         return threads()
-
-    @property
-    def filter_kernel(self) -> dict:
-        """The record's machine.filter_kernel: the lock-step block setting (avio.filter.batch.set_block;
-        "auto" for the default rule) and whether the C kernel is available (else numba's per-filter one)."""
-        return {"block": block_setting(), "native": native.unavailable() is None}
 
     @property
     def reference_calibration(self) -> Calibration:
