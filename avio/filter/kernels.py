@@ -196,15 +196,23 @@ def _bad(R, p, v, Pi, max_variance, max_speed):
     for a in range(27):
         for b in range(27):
             nonfinite |= (Pi[a, b] - Pi[a, b]) != 0.0
+    too_uncertain = False
+    for a in range(27):
+        too_uncertain |= Pi[a, a] > max_variance
+    return diverges(R, p, v, nonfinite, too_uncertain, max_speed)
+
+
+@kernel_jit
+def diverges(R, p, v, P_nonfinite, too_uncertain, max_speed):
+    """Eq. 51 given the covariance's two tests (a non-finite entry; a diagonal above the limit): those,
+    a non-finite R (3, 3), p, v (3,), or a speed above max_speed (m/s)."""
+    nonfinite = P_nonfinite
     for a in range(3):
         nonfinite |= (p[a] - p[a]) != 0.0 or (v[a] - v[a]) != 0.0
         for b in range(3):
             nonfinite |= (R[a, b] - R[a, b]) != 0.0
-    if nonfinite:
+    if nonfinite or too_uncertain:
         return True
-    for a in range(27):
-        if Pi[a, a] > max_variance:
-            return True
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > max_speed
 
 

@@ -38,6 +38,7 @@ from avio.filter.kernels import (
     _clear_updates,
     _record_poses,
     _write_frame,
+    diverges,
     zero_velocity_update_into,
     zero_velocity_workspace,
 )
@@ -162,18 +163,10 @@ def _start(q, i, hi, N, seq, cal, out, st, dn, record):
 def _diverged(st, q, dn, cfg):
     """Divergence test of lane q after its slide (avio.filter.kernels._bad, Eq. 51), its covariance's
     finiteness from ``dn.bad``."""
-    R, p, v = st.R_new[q], st.p_new[q], st.v_new[q]
-    nonfinite = dn.bad[q] != 0
-    for a in range(3):
-        nonfinite |= (p[a] - p[a]) != 0.0 or (v[a] - v[a]) != 0.0
-        for b in range(3):
-            nonfinite |= (R[a, b] - R[a, b]) != 0.0
-    if nonfinite:
-        return True
+    too_uncertain = False
     for a in range(27):
-        if dn.P[a, a, q] > cfg.max_variance:
-            return True
-    return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > cfg.max_speed_mps
+        too_uncertain |= dn.P[a, a, q] > cfg.max_variance
+    return diverges(st.R_new[q], st.p_new[q], st.v_new[q], dn.bad[q] != 0, too_uncertain, cfg.max_speed_mps)
 
 
 @kernel_jit
