@@ -3,7 +3,7 @@ in one process, and whether they give the same bits (issue 13's A/B of a kernel 
 
     python benchmarks/ab_kernel.py [--base HEAD] [--pairs 15] [--batch 16] [--threads 1] [--data ../shared/data]
                                    [--set KEY=VALUE ...] [--tree-set KEY=VALUE ...]
-    python benchmarks/ab_kernel.py --base BASE --blocks 0 1 4 8    # each lock-step block size of the tree
+    python benchmarks/ab_kernel.py --base BASE --blocks 1 4 8    # each lock-step block size of the tree
     python benchmarks/ab_kernel.py --base BASE --compile-pairs 5    # the first-run compile instead
 
 Why in one process: this VM's speed drifts between two states (~27 and ~43 ms for the same
@@ -22,7 +22,7 @@ filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's la
 from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
 
 ``--blocks`` times the working tree at each of these lock-step block sizes (avio.filter.batch.set_block:
-0 numba's per-filter kernel, 1, 4, 8 the C blocks), each in every pair; without it, its default.
+1 numba's per-filter kernel, 4 and 8 the C blocks), each in every pair; without it, its default.
 
 ``--compile-pairs K`` times the first-run compile instead: K pairs of processes, each with an empty
 numba cache, the CPU time of its first filter call (batch 1; the call that compiles the kernel).
@@ -173,7 +173,7 @@ def main(argv=None) -> None:
                     help="FilterConfig overrides of the working tree's filter only (the cost of an option "
                          "against the base's default; the bits then differ), e.g. jacobian_pixels=corrected")
     ap.add_argument("--blocks", type=int, nargs="*", default=None, metavar="L",
-                    help="the working tree's lock-step block sizes to time, each against the base (0: numba's "
+                    help="the working tree's lock-step block sizes to time, each against the base (1: numba's "
                          "per-filter kernel); default: its own rule")
     ap.add_argument("--compile-pairs", type=int, default=0, metavar="K",
                     help="instead of timing evaluations: K pairs of first-run compiles of the two kernels, each in a "
@@ -184,8 +184,8 @@ def main(argv=None) -> None:
         print(f"ab_kernel: --compile-pairs {args.compile_pairs}: expected an integer >= 0", file=sys.stderr)
         raise SystemExit(2)
     for block in args.blocks or []:
-        if block not in (0, 1, 4, 8):
-            print(f"ab_kernel: --blocks {block}: expected 0, 1, 4 or 8", file=sys.stderr)
+        if block not in (1, 4, 8):
+            print(f"ab_kernel: --blocks {block}: expected 1, 4 or 8", file=sys.stderr)
             raise SystemExit(2)
     both_set, tree_set = _overrides("--set", args.set), _overrides("--tree-set", args.tree_set)
     data = Path(args.data)

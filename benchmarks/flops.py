@@ -305,7 +305,7 @@ def twin_run(sequence, calibration, config=None) -> tuple[dict[str, int], dict]:
     threads, block = set_threads(1), batch._BLOCK
     old = batch._kernels.run_filters
     try:  # the per-filter kernel's call (a lock-step block does the same operations per lane)
-        batch.set_block(0)
+        batch.set_block(1)
         batch._kernels.run_filters = capture
         batch.run(sequence, calibration, config)
     finally:

@@ -147,7 +147,7 @@ PHASES = {phases!r}
 seq = load_kitti00({data!r}, 15, 796, seed=0)
 cfg = FilterConfig(); prep = prepare(seq, cfg)
 set_threads(1)
-af.set_block(0)  # the patched kernel: numba's per-filter one (lock-step blocks run it per lane)
+af.set_block(1)  # the patched kernel: numba's per-filter one (lock-step blocks run it per lane)
 n = {batch}
 cals = _candidates(seq.truth_calibration, n, seed=n)
 t = time.perf_counter(); run(seq, cals, cfg, prep)

@@ -37,11 +37,11 @@ _WARM = {
     "kernel": "from avio.filter import FilterConfig, run\n"
               "seq = make_circle_sequence(8, seed=0)\n"
               "run(seq, seq.truth_calibration, FilterConfig())\n",
-    "per-filter kernel": "from avio.filter import FilterConfig, run\n"
-                         "from avio.filter.batch import set_block\n"
-                         "set_block(0)\n"
-                         "seq = make_circle_sequence(8, seed=0)\n"
-                         "run(seq, seq.truth_calibration, FilterConfig())\n",
+    "lock-step kernel": "from avio.filter import FilterConfig, run, set_threads\n"
+                        "from test_batch import _candidates\n"
+                        "set_threads(1)\n"
+                        "seq = make_circle_sequence(8, seed=0)\n"
+                        "run(seq, _candidates(seq.truth_calibration, 8, seed=0), FilterConfig())\n",
     "reference kernel": "import git_reference\n"
                         "from test_against_history import REFERENCE_COMMIT, compiled_reference\n"
                         "if git_reference.unavailable(REFERENCE_COMMIT) is None:\n"

@@ -83,28 +83,28 @@ def threads() -> int:
 
 
 def set_block(n: int | None = None) -> int | None:
-    """Filters per lock-step block (avio/filter/lanes/): 1, 4 or 8; 0 for numba's per-filter kernel
-    (the fallback where no C compiler is found); None for the default rule (:func:`block_size`).
-    Results do not depend on it. Returns the setting in effect."""
+    """Filters per lock-step block (avio/filter/lanes/): 4 or 8; 1 for numba's per-filter kernel (the
+    fallback where no C compiler is found); None for the default rule (:func:`block_size`). Results do
+    not depend on it. Returns the setting in effect."""
     global _BLOCK
-    if n is not None and (isinstance(n, bool) or n not in (0, *_native.BLOCK_SIZES)):
-        raise FilterError(f"set_block: n must be one of {(0, *_native.BLOCK_SIZES)} or None, got {n!r}")
+    if n is not None and (isinstance(n, bool) or n not in (1, *_native.BLOCK_SIZES)):
+        raise FilterError(f"set_block: n must be one of {(1, *_native.BLOCK_SIZES)} or None, got {n!r}")
     _BLOCK = None if n is None else int(n)
     return _BLOCK
 
 
 def block_setting() -> int | str:
-    """:func:`set_block`'s setting: 0, 1, 4, 8, or "auto"."""
+    """:func:`set_block`'s setting: 1, 4, 8, or "auto"."""
     return "auto" if _BLOCK is None else _BLOCK
 
 
 def block_size(n: int, n_threads: int) -> int:
     """The lock-step block size for a batch of n on n_threads: :func:`set_block`'s, else the largest
     of 8 and 4 that every thread fills at least once (8 at batch 64 on 2 threads:
-    benchmarks/README.md), else 1; 0 where the C kernel is unavailable (numba's per-filter kernel
-    runs: avio.filter.lanes.native.unavailable says why)."""
-    if _BLOCK == 0 or _native.library() is None:
-        return 0
+    benchmarks/README.md), else 1: numba's per-filter kernel, which also runs wherever the C kernel is
+    unavailable (avio.filter.lanes.native.unavailable says why)."""
+    if _BLOCK == 1 or _native.library() is None:
+        return 1
     if _BLOCK is not None:
         return _BLOCK
     per_thread = -(-n // n_threads)
@@ -305,7 +305,7 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # (`python benchmarks/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
     L = block_size(n, n_threads)
-    if L:  # blocks of L filters in lock-step (avio/filter/lanes/), one task each
+    if L > 1:  # blocks of L filters in lock-step (avio/filter/lanes/), one task each
         kernel, fns = _block.run_block, _native.functions(L)
         tasks = [(lo, min(lo + L, n), L, seq, cal, settings, out, fns) for lo in range(0, n, L)]
     else:  # numba's per-filter kernel, one task per filter

@@ -59,8 +59,8 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["threads=abc"], "threads must be auto or an integer from 1 to"),
         ([f"threads={(os.cpu_count() or 1) + 1}"], f"(this machine's cores), got {(os.cpu_count() or 1) + 1}"),
         (["threads=1,0"], "threads must be auto or an integer from 1 to"),  # swept: not in the identity
-        (["filter_block=3"], "filter_block must be auto or one of 0, 1, 4, 8, got 3"),
-        (["filter_block=eight"], "filter_block must be auto or one of 0, 1, 4, 8, got 'eight'"),
+        (["filter_block=3"], "filter_block must be auto or one of 1, 4, 8, got 3"),
+        (["filter_block=eight"], "filter_block must be auto or one of 1, 4, 8, got 'eight'"),
         (["log_metrics=all,some"], "log_metrics must be one of"),  # every job's, not once per identity
         (["plugins=[.evil]"], "plugins: '.evil' is not an absolute module name"),
         (["plugins=['']"], "plugins: '' is not an absolute module name"),

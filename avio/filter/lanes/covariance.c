@@ -232,15 +232,6 @@ void lanes_proj_##L(const double *C, const double *P, double *CP, double *PCt, d
 PROJ_LANES(4)
 PROJ_LANES(8)
 
-/* A block of one filter runs the per-filter code: the lane loops of one lane would not vectorise. */
-void lanes_pred_1(double *P, const double *Phi, const double *Qd, double *T, double *U) { pred_one(P, Phi, Qd, T, U); }
-void lanes_proj_1(const double *C, const double *P, double *CP, double *PCt, double *Sig) {
-    proj_one(C, P, CP, PCt, Sig);
-}
-void lanes_gain_1(double *P, const double *PCt, const double *X, const double *CP, double *K) {
-    gain_one(P, PCt, X, CP, K);
-}
-
 /* The kernel's lock-step phases that have no per-filter benchmark variant (avio/filter/lanes/block.py):
  * slide:  the window's move of L filters (avio.filter.kernels.slide, Eq. 50), P (27, 27) in place from J
  *         (6, 15) the new clone's Jacobian; scratch NR (6, 27). A lane's zero of J keeps its sum (a select).
@@ -295,6 +286,5 @@ void lanes_finite_##L(const double *restrict P, unsigned char *restrict bad) {  
     for (int l = 0; l < L; l++) bad[l] = nf[l];                                                              \
 }
 
-SLIDE_LANES(1)
 SLIDE_LANES(4)
 SLIDE_LANES(8)

@@ -156,9 +156,6 @@ void lanes_solve_##L(double *A, double *B, double *ra, double *rb) { solve_lanes
 SOLVE_LANES(4)
 SOLVE_LANES(8)
 
-/* a block of one filter: the per-filter solve */
-void lanes_solve_1(double *A, double *B, double *ra, double *rb) { (void)ra; (void)rb; solve_one(A, B); }
-
 #define INFO_LANES(L)                                                                                              \
 static void info_lanes_##L(double *restrict A, double *restrict beta, double *restrict X,                    \
                            const double *restrict rw, const double *restrict Jw, double *restrict jw_f,      \
@@ -319,6 +316,5 @@ void lanes_stats_##L(const double *restrict Sig, const double *restrict X, const
     for (int l = 0; l < L; l++) { res[l * 2] = nis[l]; res[l * 2 + 1] = tr[l]; }                             \
 }
 
-STATS_LANES(1)
 STATS_LANES(4)
 STATS_LANES(8)

@@ -1,6 +1,6 @@
 """Today's filter gives, to the bit, every output of the filter of a pinned commit taken from the
 git history (tests/avio/filter/git_reference.py): numba's per-filter kernel and the lock-step blocks of
-1, 4 and 8 filters (avio/filter/lanes/), at batch sizes 1, 3 and 8 and 1 or 2 threads, for every
+4 and 8 filters (avio/filter/lanes/), at batch sizes 1, 3 and 8 and 1 or 2 threads, for every
 outlier mode, on a short simulated drive (and on kitti00 15-796 with the real data).
 
 The reference is frozen: the whole avio package of that commit, imported under a private name,
@@ -93,8 +93,8 @@ def _reference(ref, seq, cal, record_used=False, **config):
     return _arrays(filt.run(seq, _frozen_cal(ref, cal), cfg, filt.prepare(seq, cfg), record_used=record_used))
 
 
-#: The kernels compared: numba's per-filter one (0) and the lock-step blocks of the C (avio/filter/lanes/).
-BLOCKS = [0, *(pytest.param(L, marks=pytest.mark.skipif(native.unavailable() is not None, reason=f"no C kernel: "
+#: The kernels compared: numba's per-filter one (1) and the lock-step blocks of the C (avio/filter/lanes/).
+BLOCKS = [1, *(pytest.param(L, marks=pytest.mark.skipif(native.unavailable() is not None, reason=f"no C kernel: "
                                                          f"{native.unavailable()}")) for L in native.BLOCK_SIZES)]
 
 
@@ -128,7 +128,7 @@ def test_same_bits_as_the_reference_commit_in_every_outlier_mode(ref, mode):
     want = _reference(ref, seq, cal, **config)
     set_threads(2)
     cfg = FilterConfig(**config)
-    for block in (0, None):  # numba's per-filter kernel; the default blocks (4 on 2 threads)
+    for block in (1, None):  # numba's per-filter kernel; the default blocks (4 on 2 threads)
         set_block(block)
         _assert_same_bits(run(seq, cal, cfg, prepare(seq, cfg)), want, slice(None), f"circle, {mode}, block {block}")
 
@@ -145,7 +145,7 @@ def test_same_bits_as_the_reference_commit_on_kitti00(ref, shared_data):
         want = _reference(ref, seq, cal, **config)
         set_threads(2)
         cfg = FilterConfig(**config)
-        for block in (0, None):
+        for block in (1, None):
             set_block(block)
             got = run(seq, cal, cfg, prepare(seq, cfg))
             _assert_same_bits(got, want, slice(None), f"kitti00 15-796, {config}, block {block}")

@@ -40,7 +40,7 @@ def test_every_block_size_gives_the_per_filter_kernels_bits():
     prep = prepare(seq, cfg)
     cal = _candidates(seq.truth_calibration, 11, seed=2)  # 11: blocks of 4 and 8 end part-empty
     set_threads(1)
-    set_block(0)
+    set_block(1)
     want = _arrays(run(seq, cal, cfg, prep, record_used=True))
     at = want["diverged_at_frame"]
     assert np.any(at > 0) and np.any(at < 0) and want["used"].any(), at
@@ -54,8 +54,8 @@ def test_every_block_size_gives_the_per_filter_kernels_bits():
 
 
 def test_the_block_size_is_one_of_its_values_or_one_message():
-    for bad in (2, 16, -1, True, 4.5, "8"):
-        with pytest.raises(FilterError, match=r"set_block: n must be one of \(0, 1, 4, 8\) or None"):
+    for bad in (0, 2, 16, -1, True, 4.5, "8"):
+        with pytest.raises(FilterError, match=r"set_block: n must be one of \(1, 4, 8\) or None"):
             set_block(bad)
     assert set_block(4) == 4 and set_block(None) is None
 
@@ -65,8 +65,8 @@ def test_the_default_block_fills_every_thread():
     set_block(None)
     assert [block_size(n, 2) for n in (1, 2, 7, 8, 16, 64)] == [1, 1, 4, 4, 8, 8]
     assert block_size(3, 1) == 1 and block_size(8, 1) == 8
-    set_block(0)
-    assert block_size(64, 2) == 0
+    set_block(1)
+    assert block_size(64, 2) == 1
 
 
 def _fallback_run(env: dict) -> subprocess.CompletedProcess:
@@ -75,8 +75,9 @@ def _fallback_run(env: dict) -> subprocess.CompletedProcess:
             "from avio.filter import FilterConfig, run\n"
             "from avio.filter.batch import block_size\n"
             "from avio.filter.lanes import native\n"
+            "from test_batch import _candidates\n"
             "seq = make_circle_sequence(12, seed=0)\n"
-            "r = run(seq, seq.truth_calibration, FilterConfig())\n"
+            "r = run(seq, _candidates(seq.truth_calibration, 4, seed=0), FilterConfig())\n"
             "print('block', block_size(64, 2), 'why', native.unavailable(), 'finite', bool(abs(r.p_world_imu_m).max() < 1e9))\n")
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, **env},
                           cwd=native.HERE.parents[2], timeout=600)
@@ -85,12 +86,12 @@ def _fallback_run(env: dict) -> subprocess.CompletedProcess:
 def test_a_failed_build_says_how_to_fall_back_and_the_filter_still_runs(tmp_path):
     done = _fallback_run({"CC": "false", "AVIO_NATIVE_CACHE": str(tmp_path)})
     assert done.returncode == 0, done.stderr
-    assert "block 0 why" in done.stdout and "finite True" in done.stdout
+    assert "block 1 why" in done.stdout and "finite True" in done.stdout
     assert "lock-step C kernel is not available" in done.stderr and "AVIO_NATIVE=0" in done.stderr
     assert done.stderr.count("is not available") == 1  # once per process
     assert not list(tmp_path.glob("*.so")), "a failed build left a library behind"
     quiet = _fallback_run({"AVIO_NATIVE": "0"})
-    assert quiet.returncode == 0 and "block 0 why AVIO_NATIVE=0" in quiet.stdout
+    assert quiet.returncode == 0 and "block 1 why AVIO_NATIVE=0" in quiet.stdout
     assert "not available" not in quiet.stderr
 
 

@@ -349,7 +349,7 @@ def test_the_record_names_the_threads_the_filter_ran_on_and_an_analytic_one_none
     from bench.problems.analytic import sphere as make_sphere
 
     try:
-        for n, block in ((1, None), (2, 0)):
+        for n, block in ((1, None), (2, 1)):
             set_threads(n)
             set_block(block)
             record = run_job(problem, lambda: RandomSearch(problem.space.lower, problem.space.upper, seed=0),
