@@ -77,8 +77,8 @@ def _key(cc: str) -> str:
 
     version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout
     digest = hashlib.sha256()
-    for part in (*(HERE / s for s in SOURCES),):
-        digest.update(part.read_bytes())
+    for source in SOURCES:
+        digest.update((HERE / source).read_bytes())
     for text in (" ".join(FLAGS), version, llvm.get_host_cpu_name(), llvm.get_host_cpu_features().flatten()):
         digest.update(text.encode())
     return digest.hexdigest()[:16]
