@@ -6,13 +6,15 @@ divergence) is written out with numbered equations in docs/model.md; this module
 One call of :func:`run` runs one filter per candidate calibration over the same IMU and feature
 tracks. Every array carries the calibration axis first. The calibration-independent work (IMU
 preintegration, feature selection, process noise, standstill flags) is numpy, once per sequence
-(:func:`prepare`, avio/filter/prepare.py); the filters themselves run in one compiled numba
-kernel (avio/filter/kernels.py: run_filters) that loops over calibrations and frames: per
+(:func:`prepare`, avio/filter/prepare.py); the filters themselves run in compiled kernels that
+loop over calibrations and frames: blocks of 4 or 8 filters in lock-step, their dense phases in C
+(avio/filter/lanes/: :func:`block_size`, :func:`set_block`), or one filter after the other
+(avio/filter/kernels.py: run_filters) for small batches and where no C compiler is found. Per
 filter and frame the work is a few 27x27 products and ~16 features, far too small for numpy's
 per-call cost (pure numpy reached ~20 evaluations/s at batch 64, see benchmarks/bench_filter.py for
-the kernel's). The batch is split over threads (:func:`set_threads`: contiguous ranges of
-calibrations, the kernel releases the GIL) and each filter is computed by one thread with the
-same operations as alone, so a batch gives the same bits as single runs whatever its size and
+the kernel's). The batch is split over threads (:func:`set_threads`: blocks, or single
+calibrations, taken as threads come free; the kernels release the GIL) and each filter is computed
+by one thread with the same operations as alone, so a batch gives the same bits as single runs whatever its size and
 the thread count; no fastmath, so results are deterministic. The first call of a process with a
 cold numba cache compiles the kernel and says so on stderr (:data:`COMPILE_ESTIMATE_S`).
 
