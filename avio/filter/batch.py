@@ -113,6 +113,34 @@ def block_size(n: int, n_threads: int) -> int:
     return next(L for L in (8, 4, 1) if L <= per_thread)
 
 
+def block_plan(n: int, n_threads: int) -> list[tuple[int, int, int]]:
+    """The lock-step blocks ``(lo, hi, L)`` of a batch of n on n_threads, in the order the threads take
+    them; [] where :func:`block_size` is 1 (numba's per-filter kernel). With :func:`set_block`'s L:
+    consecutive blocks of L. By default the batch is cut into n_threads near-equal contiguous shares,
+    each in blocks of :func:`block_size` and its rest in one block of 4 (at most 4 left) or 8, the
+    shares' blocks interleaved so that each thread takes about one share: a batch of 20 (a default job's)
+    on 2 threads runs 8 + 2 on each thread, where blocks of 8, 8 and 4-in-8 left one thread idle for
+    the last (benchmarks/README.md)."""
+    L = block_size(n, n_threads)
+    if L == 1:
+        return []
+    if _BLOCK is not None:
+        return [(lo, min(lo + L, n), L) for lo in range(0, n, L)]
+    shares = []
+    for t in range(n_threads):
+        lo, hi = t * n // n_threads, (t + 1) * n // n_threads
+        blocks = []
+        while lo < hi:
+            size = L if hi - lo >= L or hi - lo > 4 else 4
+            blocks.append((lo, min(lo + size, hi), size))
+            lo += size
+        shares.append(blocks)
+    order = []
+    for k in range(max(len(blocks) for blocks in shares)):
+        order += [blocks[k] for blocks in shares if k < len(blocks)]
+    return order
+
+
 #: First-run compile time of the kernel, seconds, quoted in the message before a cold compile:
 #: measured 50-57 s CPU on a 2-core AVX-512 machine (2026-12-05) and 68-101 s on a 2-core AVX2
 #: one (2026-12-06; benchmarks/README.md, `python benchmarks/ab_kernel.py --compile-pairs`).
@@ -306,10 +334,10 @@ def run(sequence: Sequence, calibrations: Calibration, config: FilterConfig = Fi
     # default job's batches four ranges per thread idled a thread for ~10 % of the time
     # (`python benchmarks/bench_filter.py schedule`); a kernel call costs ~12 us against ~12 ms.
     n_threads = min(threads(), n)
-    L = block_size(n, n_threads)
-    if L > 1:  # blocks of L filters in lock-step (avio/filter/lanes/), one task each
-        kernel, fns = _block.run_block, _native.functions(L)
-        tasks = [(lo, min(lo + L, n), L, seq, cal, settings, out, fns) for lo in range(0, n, L)]
+    blocks = block_plan(n, n_threads)
+    if blocks:  # blocks of filters in lock-step (avio/filter/lanes/), one task each
+        kernel = _block.run_block
+        tasks = [(lo, hi, L, seq, cal, settings, out, _native.functions(L)) for lo, hi, L in blocks]
     else:  # numba's per-filter kernel, one task per filter
         kernel = _kernels.run_filters
         tasks = [(i, i + 1, seq, cal, settings, out) for i in range(n)] if n_threads > 1 else [(0, n, seq, cal,

@@ -188,6 +188,7 @@ class MeasureWorkspace(NamedTuple):
     E: np.ndarray  #: (3, 3)
     uc: np.ndarray  #: (3, 2) a feature's corrected pixels (Eq. 35a), px
     uL: np.ndarray  #: (6 * LANES,) a block of features' pixels, px (trifocal.LANES; features last)
+    fL: np.ndarray  #: (LANES,) int64: which feature each lane of a block of corrected pixels holds
     rL: np.ndarray  #: (4 * LANES,) their innovations, px
     JL: np.ndarray  #: (48 * LANES,) their Jacobians (4, 12) w.r.t. the relative-pose errors
     GL: np.ndarray  #: (24 * LANES,) their pixel sensitivities (4, 6)

@@ -23,7 +23,7 @@ from avio.errors import AvioError
 from avio.filter._linalg import corrected_pixels, matmul, so3_exp
 from avio.filter._simd import kernel_jit
 from avio.filter.interface import MeasureWorkspace
-from avio.filter.trifocal import LANES, features_block, one_feature, rot_t
+from avio.filter.trifocal import LANES, features_block, rot_t
 
 
 class MeasurementError(AvioError):
@@ -70,14 +70,14 @@ def measure_workspace():
     return MeasureWorkspace(R3=np.empty((3, 3)), p3=np.empty(3), Jsh=np.empty((6, 15)), Rc=np.empty((3, 3, 3)),
                             pc=np.empty((3, 3)), G=np.zeros((18, 27)), M=np.empty((6, 6)), R12=np.empty((3, 3)),
                             R13=np.empty((3, 3)), R23=np.empty((3, 3)), D=np.zeros((12, 18)), E=np.empty((3, 3)),
-                            uc=np.empty((3, 2)), uL=np.empty(6 * LANES), rL=np.empty(4 * LANES),
-                            JL=np.empty(48 * LANES), GL=np.empty(24 * LANES))
+                            uc=np.empty((3, 2)), uL=np.empty(6 * LANES), fL=np.zeros(LANES, np.int64),
+                            rL=np.empty(4 * LANES), JL=np.empty(48 * LANES), GL=np.empty(24 * LANES))
 
 
 
 @kernel_jit
-def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, pair23,
-            cap=0.0, noise_too=True):
+def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv, r, J, Gp, C, t12, t13, ws, cap=0.0,
+            noise_too=True):
     """Innovations r (4, F) pixels, their Jacobians J (4, 12, F) w.r.t. the relative-pose errors
     ``[psi12, dt12, psi13, dt13]``, their pixel sensitivities Gp (4, 6, F) (the measurement
     noise model, avio.filter.trifocal.feature_residuals, which writes one feature's column: features
@@ -89,15 +89,16 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     pose) -> camera pose errors ``[dp_cam, phi]`` (``phi = R_cam_imu dtheta``,
     ``dp_cam = dp - R_world_imu [p_imu_cam]x dtheta``) -> relative-pose errors
     (``psi1j = phi_j - R1j^T phi_1``, ``dt1j = [t1j]x phi_1 + R_world_cam1^T (dp_cam_j - dp_cam_1)``)
-    -> residuals (avio.filter.trifocal.feature_residuals). ``pair23=False`` leaves residual 1 (the
-    Sampson distance 2-3, which the update does not use) zero. With ``cap > 0`` (px) each feature's
-    J and (with ``noise_too``) Gp are taken again at its corrected pixels (:func:`corrected_pixels`,
-    Eqs. 35a-b, the step at most ``cap`` long; r stays the measured pixels' innovation).
+    -> residuals (avio.filter.trifocal.feature_residuals, without residual 1: the Sampson distance
+    2-3, which the update does not use, is left zero, with its rows of J and Gp). With ``cap > 0``
+    (px) each feature's J and (with ``noise_too``) Gp are taken again at its corrected pixels
+    (:func:`corrected_pixels`, Eqs. 35a-b, the step at most ``cap`` long; r stays the measured
+    pixels' innovation).
     docs/model.md: shifted pose Eq. 19, camera poses Eq. 20, relative poses Eq. 21, camera pose
     errors Eq. 22, relative-pose errors Eq. 23, C Eq. 24.
     """
     R3, p3, Jsh, Rc, pc, G, M, R12, R13 = ws.R3, ws.p3, ws.Jsh, ws.Rc, ws.pc, ws.G, ws.M, ws.R12, ws.R13
-    R23, D, E, uc, uL, rL, JL, GL = ws.R23, ws.D, ws.E, ws.uc, ws.uL, ws.rL, ws.JL, ws.GL
+    R23, D, E, uc, uL, fL, rL, JL, GL = ws.R23, ws.D, ws.E, ws.uc, ws.uL, ws.fL, ws.rL, ws.JL, ws.GL
     # Eq. (19): the exposure-time pose of image 3.
     shifted_pose(R, p, v, omega, td, R3, p3, Jsh, E)
     # G (18, 27): camera pose errors of images 1, 2, 3 <- state error; D (12, 18): camera pose
@@ -140,34 +141,40 @@ def measure(R, p, v, cp0, cR0, cp1, cR1, omega, td, fx, fy, cx, cy, Rci, pic, uv
     a23 = rot_t(R12, (a13[0] - a12[0], a13[1] - a12[1], a13[2] - a12[2]))
     for i in range(3):
         t12[i], t13[i] = a12[i], a13[i]
-    # Eqs. (29)-(34). The filter's path (pair23=False): LANES features at a time, SIMD across them (a
-    # last, partial block repeats its last feature in the spare lanes: computed, not copied out).
+    # Eqs. (29)-(34): LANES features at a time, SIMD across them (a last, partial block repeats its
+    # last feature in the spare lanes: computed, not copied out). Residual 1 is not computed
+    # (trifocal.features_block); the kernel compiles no one-feature path, which saved ~9 s of its
+    # first compile (benchmarks/README.md).
     F = uv.shape[0]
-    if pair23:
-        for f in range(F):
-            # pair23, not the literal True: the same argument types as the call below, so numba compiles
-            # one_feature once, not twice (~12 s of the kernel's first compile).
-            r[0, f], r[1, f], r[2, f], r[3, f] = one_feature(uv[f], R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL,
-                                                              GL, pair23)
-            _copy_out(JL, GL, 1, 0, 1, J, Gp, f)
-    else:
-        for f0 in range(0, F, LANES):
-            n = min(LANES, F - f0)
-            for i in range(6):
-                for lane in range(LANES):
-                    uL[i * LANES + lane] = uv[f0 + min(lane, n - 1), i // 2, i % 2]
-            features_block(uL, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rL, JL, GL)
-            for a in range(4):
-                for lane in range(n):
-                    r[a, f0 + lane] = rL[a * LANES + lane]
-            _copy_out(JL, GL, LANES, 0, n, J, Gp, f0)
+    for f0 in range(0, F, LANES):
+        n = min(LANES, F - f0)
+        for i in range(6):
+            for lane in range(LANES):
+                uL[i * LANES + lane] = uv[f0 + min(lane, n - 1), i // 2, i % 2]
+        features_block(uL, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rL, JL, GL)
+        for a in range(4):
+            for lane in range(n):
+                r[a, f0 + lane] = rL[a * LANES + lane]
+        _copy_out(JL, GL, LANES, 0, n, J, Gp, f0)
     # Eq. (35a): J and Gp (or J alone, Eq. 35c) again at the corrected pixels (r stays the measured
-    # pixels' innovation).
+    # pixels' innovation), the corrected features LANES at a time as above (a feature's correction
+    # reads its own column only, so the order of the copies does not matter).
     if cap > 0.0:
+        n = 0
         for f in range(F):
             if corrected_pixels(uv[f], r[:, f], Gp[:, :, f], cap, uc):
-                one_feature(uc, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, JL, GL, pair23)
-                _copy_out(JL, GL, 1, 0, 1, J, Gp, f, noise_too)
+                fL[n] = f
+                for i in range(6):
+                    uL[i * LANES + n] = uc[i // 2, i % 2]
+                n += 1
+            if n == LANES or (n > 0 and f == F - 1):
+                for i in range(6):
+                    for lane in range(n, LANES):
+                        uL[i * LANES + lane] = uL[i * LANES + n - 1]
+                features_block(uL, R12, a12, R13, a13, R23, a23, fx, fy, cx, cy, rL, JL, GL)
+                for lane in range(n):
+                    _copy_out(JL, GL, LANES, lane, 1, J, Gp, fL[lane], noise_too)
+                n = 0
     # Eq. (23): D (12, 18), camera pose errors -> relative-pose errors.
     for jj in range(2):
         row, Rj, t = 6 * jj, (R12 if jj == 0 else R13), (a12 if jj == 0 else a13)

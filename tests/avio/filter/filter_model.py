@@ -21,11 +21,21 @@ def measure_all(R, p, v, cp, cR, omega, td, fx, fy, cx, cy, Rci, pic, uv):
     n, F = R.shape[0], uv.shape[0]
     r, J, C = np.empty((n, F, 4)), np.empty((n, F, 4, 12)), np.empty((n, 12, 27))
     rT, JT, Gp = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
+    r1, J1, G1 = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
     t12, t13 = np.empty((n, 3)), np.empty((n, 3))
     ws = measure_workspace()
     for i in range(n):
         measure(R[i], p[i], v[i], cp[0, i], cR[0, i], cp[1, i], cR[1, i], omega[i], td[i], fx[i], fy[i],
-                cx[i], cy[i], Rci[i], pic[i], uv, rT, JT, Gp, C[i], t12[i], t13[i], ws, True)
+                cx[i], cy[i], Rci[i], pic[i], uv, rT, JT, Gp, C[i], t12[i], t13[i], ws)
+        # measure leaves residual 1 (the Sampson distance 2-3) zero: it, from the same relative poses
+        a12 = (t12[i, 0], t12[i, 1], t12[i, 2])
+        a13 = (t13[i, 0], t13[i, 1], t13[i, 2])
+        a23 = rot_t(ws.R12, (a13[0] - a12[0], a13[1] - a12[1], a13[2] - a12[2]))
+        for f in range(F):
+            feature_residuals(uv[f], ws.R12, a12, ws.R13, a13, ws.R23, a23, fx[i], fy[i], cx[i], cy[i], r1, J1, G1)
+            rT[1, f] = r1[1]
+            for b in range(12):
+                JT[1, b, f] = J1[1, b]
         for f in range(F):
             for a in range(4):
                 r[i, f, a] = rT[a, f]

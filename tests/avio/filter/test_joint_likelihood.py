@@ -6,10 +6,12 @@ feature's Jacobian at its measured or its corrected pixels (FilterConfig.jacobia
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from avio.filter._linalg import corrected_pixels
 from avio.filter.interface import Calibrations, FilterState, Settings, UpdateWorkspaces
 from avio.filter.measurement import measure, measure_workspace
+from avio.filter.trifocal import LANES, feature_residuals
 from avio.filter.update import (
     MODE_NONE,
     NOISE_FLOOR,
@@ -52,7 +54,7 @@ def _measured(Rs, ps, uv, cap=0.0, noise_too=True):
     r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
     measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
-            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False, cap, noise_too)
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), cap, noise_too)
     return r4, J4, G4
 
 
@@ -63,7 +65,7 @@ def _dense(Rs, ps, P, uv, sigma_px):
     r4, J4, G4 = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F))
     C, t12, t13 = np.empty((12, 27)), np.empty(3), np.empty(3)
     measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
-            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace(), False)
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, measure_workspace())
     rows = list(USED_RESIDUALS)
     r = r4[rows].T.reshape(-1)  # feature-major: (f, a)
     H = np.concatenate([J4[rows, :, f] for f in range(F)]) @ C
@@ -126,6 +128,35 @@ def test_corrected_pixels_satisfy_the_used_residuals_to_first_order():
     half = 0.5 * np.linalg.norm(step)
     assert corrected_pixels(uv[1], r4[:, 1], G4[:, :, 1], half, u0)
     np.testing.assert_allclose(uv[1] - u0, 0.5 * step, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("noise_too", [True, False])
+def test_the_corrected_features_jacobians_are_those_of_each_feature_alone_at_its_corrected_pixels(noise_too):
+    """measure re-linearises the corrected features LANES at a time (trifocal.features_block); each
+    feature's J (and Gp with noise_too) must be the bits of the one-feature arithmetic at its own
+    corrected pixels, whichever lane it took; r stays the measured pixels' innovation."""
+    rng = np.random.default_rng(11)
+    F = 2 * LANES + 3  # two full blocks of corrections and a partial one
+    Rs, ps, _, uv = _scene(rng, F=F, noise_px=1.0)
+    uv[5, 2] += (40.0, -25.0)  # an outlier: a long step, cut to the cap
+    cap = 4.0
+    r0, J0, G0 = _measured(Rs, ps, uv)
+    r4, J4, G4, C = np.empty((4, F)), np.empty((4, 12, F)), np.empty((4, 6, F)), np.empty((12, 27))
+    t12, t13, ws = np.empty(3), np.empty(3), measure_workspace()
+    measure(Rs[2], ps[2], np.zeros(3), ps[0], Rs[0], ps[1], Rs[1], np.zeros(3), 0.0, *INTRINSICS, R_CAM_IMU,
+            np.zeros(3), uv, r4, J4, G4, C, t12, t13, ws, cap, noise_too)
+    assert r4.tobytes() == r0.tobytes()
+    a12, a13 = tuple(t12), tuple(t13)
+    d, R = t13 - t12, ws.R12
+    a23 = tuple(R[0, j] * d[0] + R[1, j] * d[1] + R[2, j] * d[2] for j in range(3))  # trifocal.rot_t's order
+    r1, J1, G1 = np.empty(4), np.empty((4, 12)), np.empty((4, 6))
+    uc = np.empty((3, 2))
+    for f in range(F):
+        assert corrected_pixels(uv[f], r0[:, f], G0[:, :, f], cap, uc)
+        feature_residuals(uc, ws.R12, a12, ws.R13, a13, ws.R23, a23, *INTRINSICS, r1, J1, G1, False)
+        assert J4[:, :, f].tobytes() == J1.tobytes(), f"feature {f}: J"
+        want = G1 if noise_too else G0[:, :, f]
+        assert G4[:, :, f].tobytes() == want.tobytes(), f"feature {f}: Gp"
 
 
 def _mean_score(Rs, ps, clean, corrected, rng, draws=1000, sigma=1.0, noise_too=True):
