@@ -72,7 +72,14 @@ def kernel_jit(func=None, *, allocates: bool = False, **options):
     only computes on arrays its caller owns needs none, and each view or array bound to a name
     cost an atomic increment and decrement (issue 30: ~8 % of the kernel's time went to them,
     ``perf``). A function that allocates (np.empty, a workspace) must say ``allocates=True``; without
-    it numba refuses to compile the allocation, so a forgotten flag is a compile error, not a leak."""
+    it numba refuses to compile the allocation, so a forgotten flag is a compile error, not a leak.
+
+    ``inline="always"`` (numba's IR inlining) for a function called per filter and frame with the
+    kernel's structures: numba passes a NamedTuple of arrays as its flattened fields (~10 words an
+    array), so a call with the update's workspaces stored ~700 words on the stack each time; perf
+    put 13 % of the lock-step kernel's time in those stores. Inlining the update's stages, the
+    block's update and its small per-lane helpers made the kernel 1.36x faster at batch 64, same
+    bits (benchmarks/README.md, 2026-12-07)."""
     options = {"cache": True, "error_model": "numpy", "pipeline_class": PackedCompiler, "_nrt": allocates, **options}
     return numba.njit(**options) if func is None else numba.njit(**options)(func)
 

@@ -4,7 +4,8 @@ outlier rejection, Kalman update in information form, and the injection of the c
 Equations: docs/model.md, Sections "Noise model" to "Innovation statistics" (Eqs. 29, 34-46);
 the measurement chain and Jacobians are avio/filter/measurement.py (Eqs. 19-33). Called by
 :func:`avio.filter.kernels.run_filters`, once per filter and update frame, with workspaces
-allocated once per filter range, and in stages by avio/filter/lanes/block.py."""
+allocated once per filter range, and in stages by avio/filter/lanes/block.py; both inlined where called
+(``inline="always"``: a call would store its flattened workspaces on the stack, _simd.kernel_jit)."""
 
 from __future__ import annotations
 
@@ -129,7 +130,7 @@ def _noise_model(Gp, sigma_px, Rm, sd, Lm, ldR):
     log_det_lanes(Lm, ldR)
 
 
-@kernel_jit
+@kernel_jit(inline="always")
 def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     """One trifocal update of filter ``i``: its predicted state x (avio.filter.interface.FilterState,
     covariance included) in place, its calibration row i of ``cal`` (interface.Calibrations), the
@@ -167,7 +168,7 @@ def update(x, omega, cal, i, uv, valid, cfg, ws, record, decided):
     return used, n_ok - used, nis, log_det_S, M * used, nll, M * n_valid, pose_trace
 
 
-@kernel_jit
+@kernel_jit(inline="always")
 def update_measure(x, omega, cal, i, uv, valid, cfg, ws):
     """Stage 1 of :func:`update`: the measurement of the F features (residuals, Jacobians, the chain C
     into ``ws.update.C``), the usable features ``ws.update.ok`` and their noise model (ws.noise).
@@ -250,7 +251,7 @@ def project(C, P, CP, PCt, Sig):
             Sig[a, b], Sig[b, a] = s, s
 
 
-@kernel_jit
+@kernel_jit(inline="always")
 def update_information(valid, cfg, ws, record, decided):
     """Stage 3 of :func:`update` (Sigma in ``ws.update.Sig``): the features' innovations, the NLL
     score, the outlier rejection and the information sum over the inliers, which leaves

@@ -83,7 +83,8 @@ def run_block(lo, hi, L, seq, cal, cfg, out, fns):
                       zero_velocity_workspace(), fws)
 
 
-@kernel_jit
+# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
+@kernel_jit(inline="always")
 def _lane_workspaces(uws, keep, q):
     """The update's workspaces of lane q: its kept arrays (LaneKeep) and the shared scratch."""
     u, n = uws.update, uws.noise
@@ -159,7 +160,8 @@ def _start(q, i, hi, N, seq, cal, out, st, dn, record):
         st.active[q] = not frozen
 
 
-@kernel_jit
+# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
+@kernel_jit(inline="always")
 def _diverged(st, q, dn, cfg):
     """Divergence test of lane q after its slide (avio.filter.kernels._bad, Eq. 51), its covariance's
     finiteness from ``dn.bad``."""
@@ -169,7 +171,8 @@ def _diverged(st, q, dn, cfg):
     return diverges(st.R_new[q], st.p_new[q], st.v_new[q], dn.bad[q] != 0, too_uncertain, cfg.max_speed_mps)
 
 
-@kernel_jit
+# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
+@kernel_jit(inline="always")
 def _state(st, q, P):
     """Lane q's predicted state as a FilterState (views; P the per-filter covariance scratch)."""
     return FilterState(R=st.R_new[q], p=st.p_new[q], v=st.v_new[q], ba=st.ba[q], bg=st.bg[q], cp0=st.cp[q, 0],
@@ -256,7 +259,8 @@ def _run_block_frames(lo, hi, L, seq, cal, cfg, out, fns, st, keep, dn, uws, pws
             copy1(out.sigma[lo + q, k], fws.sig0)
 
 
-@kernel_jit
+# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
+@kernel_jit(inline="always")
 def _update_block(lo, k, j, L, seq, cal, cfg, out, fns, st, keep, dn, uws, fws, record):
     """Frame k's trifocal update (triplet j) of every active lane: avio.filter.update.update's stages,
     the dense ones (C P and Sigma, the solve, the downdate) for the whole block at once."""
