@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from avio.filter._linalg import copy2, matmul, so3_exp, solve
+from avio.filter._linalg import copy2, matmul, matmul12, so3_exp, solve
 from avio.filter._simd import kernel_jit
 from avio.filter.interface import NoiseWorkspace, OutlierWorkspace, UpdateWorkspace
 from avio.filter.measurement import measure
@@ -237,14 +237,14 @@ def update_measure(x, omega, cal, i, uv, valid, cfg, ws):
 @kernel_jit
 def project(C, P, CP, PCt, Sig):
     """Stage 2 of :func:`update`, one filter: CP = C P (12, 27), PCt (27, 12) its transpose, Sigma
-    = C P C^T (12, 12), from C (12, 27) and P (27, 27) (Eq. 37; lock-step: avio/filter/lanes/lanes.c)."""
+    = C P C^T (12, 12), from C (12, 27) and P (27, 27) (Eq. 37; lock-step: avio/filter/lanes/update.c)."""
     # CP = C P (C is ~60 % zeros, which matmul skips), PCt = its transpose (P is
     # symmetric), Sigma = C P C^T (symmetrised; Eq. 37).
     matmul(C, P, CP)
     for a in range(27):
         for b in range(12):
             PCt[a, b] = CP[b, a]
-    matmul(C, PCt, Sig)
+    matmul12(C, PCt, Sig)
     for a in range(12):
         for b in range(a):
             s = 0.5 * (Sig[a, b] + Sig[b, a])
@@ -333,7 +333,7 @@ def update_information(valid, cfg, ws, record, decided):
         for c in range(b):
             A[b, c] = A[c, b]
     # X = (I + A Sigma)^-1 [A | beta] (Eqs. 41-42)
-    matmul(A, Sig, Mx)
+    matmul12(A, Sig, Mx)
     for a in range(d):
         Mx[a, a] += 1.0
         for b in range(d):
