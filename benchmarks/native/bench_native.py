@@ -54,7 +54,7 @@ from simd import aligned, asm_fp_counts, fp_counts, kernel_jit, slp_vectorize
 
 from avio.filter import measurement
 from avio.filter import update as update_module
-from avio.filter._linalg import matmul, solve
+from avio.filter._linalg import matmul, matmul12, solve
 from avio.filter.kernels import propagate_covariance
 from avio.filter.outliers import feature_innovations_into
 from avio.geometry import so3_exp
@@ -96,7 +96,7 @@ def kernel_phase(name: str, source: str | None = None):
     lines = ["d, M = 12, 3", "F = inl.shape[0]" if "inl" in params else "", *code[start:end + 1],
              f"return {returns}" if returns else ""]
     text = f"def {name}({params}):\n" + textwrap.indent("\n".join(line for line in lines if line), "    ")
-    namespace = {"matmul": matmul}
+    namespace = {"matmul": matmul, "matmul12": matmul12}
     exec(compile(text, f"<avio.filter.update.update: {name}>", "exec"), namespace)
     return namespace[name]
 

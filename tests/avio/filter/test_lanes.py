@@ -15,7 +15,7 @@ from test_batch import _candidates
 from test_filter import make_circle_sequence
 
 from avio.filter import FilterConfig, FilterError, prepare, run, set_threads
-from avio.filter.batch import block_size, set_block
+from avio.filter.batch import block_plan, block_size, set_block
 from avio.filter.lanes import native
 
 needs_c = pytest.mark.skipif(native.unavailable() is not None, reason=f"no C kernel: {native.unavailable()}")
@@ -44,7 +44,7 @@ def test_every_block_size_gives_the_per_filter_kernels_bits():
     want = _arrays(run(seq, cal, cfg, prep, record_used=True))
     at = want["diverged_at_frame"]
     assert np.any(at > 0) and np.any(at < 0) and want["used"].any(), at
-    for block in native.BLOCK_SIZES:
+    for block in (*native.BLOCK_SIZES, None):  # None: the default plan (at 1 thread a block of 8, then one of 4)
         set_block(block)
         for n_threads in (1, 2):
             set_threads(n_threads)
@@ -67,6 +67,34 @@ def test_the_default_block_fills_every_thread():
     assert block_size(3, 1) == 1 and block_size(8, 1) == 8
     set_block(1)
     assert block_size(64, 2) == 1
+
+
+@needs_c
+@pytest.mark.parametrize("n", [4, 9, 11, 17, 20, 33, 64])
+@pytest.mark.parametrize("n_threads", [1, 2])
+def test_the_default_plan_covers_the_batch_once_in_equal_shares(n, n_threads):
+    set_block(None)
+    plan = block_plan(n, n_threads)
+    if not plan:  # too few filters per thread for a block: the per-filter kernel
+        assert block_size(n, n_threads) == 1 and n / n_threads < 4
+        return
+    assert sorted(i for lo, hi, _ in plan for i in range(lo, hi)) == list(range(n))
+    assert all(0 < hi - lo <= L and L in native.BLOCK_SIZES for lo, hi, L in plan)
+    assert all(hi - lo > 4 for lo, hi, L in plan if L == 8)  # a rest of at most 4 takes a block of 4
+    # each thread's share (every n_threads-th block from its first) holds n / n_threads filters, +-1
+    shares = [sum(hi - lo for lo, hi, _ in plan[t::n_threads]) for t in range(n_threads)]
+    assert max(shares) - min(shares) <= 1 or n_threads == 1, plan
+    set_block(8)
+    assert block_plan(n, n_threads) == [(lo, min(lo + 8, n), 8) for lo in range(0, n, 8)]
+
+
+def test_the_default_plan_of_a_default_jobs_batch():
+    """psoga's batches of 20 on 2 threads: 8 + 2 on each thread, not 8, 8 and a block of 8 holding 4."""
+    set_block(None)
+    if native.unavailable() is not None:
+        assert block_plan(20, 2) == []
+    else:
+        assert block_plan(20, 2) == [(0, 8, 8), (10, 18, 8), (8, 10, 4), (18, 20, 4)]
 
 
 def _fallback_run(env: dict) -> subprocess.CompletedProcess:

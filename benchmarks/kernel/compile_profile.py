@@ -3,7 +3,7 @@ exclusive (the function's own typing, lowering, LLVM optimisation and code gener
 re-optimising and re-generating the code of every callee linked into it) and inclusive (its callees'
 compiles too).
 
-    python benchmarks/compile_profile.py [--block 1|4|8] [--batch N] [--top 25] [--cache DIR]
+    python benchmarks/kernel/compile_profile.py [--block 1|4|8] [--batch N] [--top 25] [--cache DIR]
 
 Runs kitti00 frames 15-60 once with an empty numba cache (a temporary folder unless ``--cache``
 names one: a second run into the same folder shows what the other kernel adds once the shared stages
@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def main(argv=None) -> None:

@@ -3,7 +3,7 @@ default job's batches: the default plan (near-equal shares per thread, each shar
 against consecutive blocks of 8 (``set_block(8)``, the rule before it), paired and in a new random order
 each pair, with the same bits checked.
 
-    python benchmarks/block_plan.py [--evals JOB/evals.jsonl] [--pairs 7] [--threads 2]
+    python benchmarks/kernel/block_plan.py [--evals JOB/evals.jsonl] [--pairs 7] [--threads 2]
 
 Without ``--evals`` it runs the default job first (``python -m bench optimizer=psoga instance=0
 budget.evals=500 report=false``) and takes its batches (psoga: 25 batches of 20). Prints per plan the
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from avio.filter import set_threads
