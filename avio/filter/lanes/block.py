@@ -14,7 +14,8 @@ range) is inactive: it gets benign values (P0, no update) and nothing of it is r
 Layout: the dense phases' arrays lanes last (avio.filter.interface.DenseLanes: entry [a, b, q] of
 lane q); each lane's state and what its update keeps between stages lanes first (LaneStates,
 LaneKeep); one set of per-filter scratch for whichever lane runs (FrameWorkspace, UpdateWorkspaces).
-Equations: docs/model.md.
+The block's update and the per-lane helpers that take those structures are inlined (``inline="always"``:
+a call would store their flattened arrays on the stack, _simd.kernel_jit). Equations: docs/model.md.
 """
 
 from __future__ import annotations
@@ -83,7 +84,6 @@ def run_block(lo, hi, L, seq, cal, cfg, out, fns):
                       zero_velocity_workspace(), fws)
 
 
-# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
 @kernel_jit(inline="always")
 def _lane_workspaces(uws, keep, q):
     """The update's workspaces of lane q: its kept arrays (LaneKeep) and the shared scratch."""
@@ -160,7 +160,6 @@ def _start(q, i, hi, N, seq, cal, out, st, dn, record):
         st.active[q] = not frozen
 
 
-# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
 @kernel_jit(inline="always")
 def _diverged(st, q, dn, cfg):
     """Divergence test of lane q after its slide (avio.filter.kernels._bad, Eq. 51), its covariance's
@@ -171,7 +170,6 @@ def _diverged(st, q, dn, cfg):
     return diverges(st.R_new[q], st.p_new[q], st.v_new[q], dn.bad[q] != 0, too_uncertain, cfg.max_speed_mps)
 
 
-# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
 @kernel_jit(inline="always")
 def _state(st, q, P):
     """Lane q's predicted state as a FilterState (views; P the per-filter covariance scratch)."""
@@ -259,7 +257,6 @@ def _run_block_frames(lo, hi, L, seq, cal, cfg, out, fns, st, keep, dn, uws, pws
             copy1(out.sigma[lo + q, k], fws.sig0)
 
 
-# inlined: its NamedTuple arguments would go on the stack as flattened words each call (_simd.kernel_jit)
 @kernel_jit(inline="always")
 def _update_block(lo, k, j, L, seq, cal, cfg, out, fns, st, keep, dn, uws, fws, record):
     """Frame k's trifocal update (triplet j) of every active lane: avio.filter.update.update's stages,
