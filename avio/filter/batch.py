@@ -7,9 +7,9 @@ One call of :func:`run` runs one filter per candidate calibration over the same 
 tracks. Every array carries the calibration axis first. The calibration-independent work (IMU
 preintegration, feature selection, process noise, standstill flags) is numpy, once per sequence
 (:func:`prepare`, avio/filter/prepare.py); the filters themselves run in compiled kernels that
-loop over calibrations and frames: blocks of 4 or 8 filters in lock-step, their dense phases in C
+loop over calibrations and frames: blocks of 2, 4 or 8 filters in lock-step, their dense phases in C
 (avio/filter/lanes/: :func:`block_size`, :func:`set_block`), or one filter after the other
-(avio/filter/kernels.py: run_filters) for small batches and where no C compiler is found. Per
+(avio/filter/kernels.py: run_filters) for a batch of one and where no C compiler is found. Per
 filter and frame the work is a few 27x27 products and ~16 features, far too small for numpy's
 per-call cost (pure numpy reached ~20 evaluations/s at batch 64, see benchmarks/bench_filter.py for
 the kernel's). The batch is split over threads (:func:`set_threads`: blocks, or single
@@ -85,7 +85,7 @@ def threads() -> int:
 
 
 def set_block(n: int | None = None) -> int | None:
-    """Filters per lock-step block (avio/filter/lanes/): 4 or 8; 1 for numba's per-filter kernel (the
+    """Filters per lock-step block (avio/filter/lanes/): 2, 4 or 8; 1 for numba's per-filter kernel (the
     fallback where no C compiler is found); None for the default rule (:func:`block_size`). Results do
     not depend on it. Returns the setting in effect."""
     global _BLOCK
@@ -96,31 +96,35 @@ def set_block(n: int | None = None) -> int | None:
 
 
 def block_setting() -> int | str:
-    """:func:`set_block`'s setting: 1, 4, 8, or "auto"."""
+    """:func:`set_block`'s setting: 1, 2, 4, 8, or "auto"."""
     return "auto" if _BLOCK is None else _BLOCK
 
 
 def block_size(n: int, n_threads: int) -> int:
     """The lock-step block size for a batch of n on n_threads: :func:`set_block`'s, else the largest
-    of 8 and 4 that every thread fills at least once (8 at batch 64 on 2 threads:
-    benchmarks/README.md), else 1: numba's per-filter kernel, which also runs wherever the C kernel is
-    unavailable (avio.filter.lanes.native.unavailable says why)."""
+    of 8, 4 and 2 that every thread fills at least once (8 at batch 64 on 2 threads:
+    benchmarks/README.md), else 2; 1 for a batch of one calibration: numba's per-filter kernel, faster
+    than a block of 2 there (benchmarks/README.md), which also runs wherever the C kernel is
+    unavailable (avio.filter.lanes.native.unavailable says why). So a process whose batches hold two
+    calibrations or more loads (or first compiles) one kernel, not two."""
     if _BLOCK == 1 or _native.library() is None:
         return 1
     if _BLOCK is not None:
         return _BLOCK
+    if n == 1:
+        return 1
     per_thread = -(-n // n_threads)
-    return next(L for L in (8, 4, 1) if L <= per_thread)
+    return next((L for L in (8, 4) if L <= per_thread), 2)
 
 
 def block_plan(n: int, n_threads: int) -> list[tuple[int, int, int]]:
     """The lock-step blocks ``(lo, hi, L)`` of a batch of n on n_threads, in the order the threads take
     them; [] where :func:`block_size` is 1 (numba's per-filter kernel). With :func:`set_block`'s L:
     consecutive blocks of L. By default the batch is cut into n_threads near-equal contiguous shares,
-    each in blocks of :func:`block_size` and its rest in one block of 4 (at most 4 left) or 8, the
-    shares' blocks interleaved so that each thread takes about one share: a batch of 20 (a default job's)
-    on 2 threads runs 8 + 2 on each thread, where blocks of 8, 8 and 4-in-8 left one thread idle for
-    the last (benchmarks/README.md)."""
+    each in blocks of :func:`block_size` and its rest in one block of 2 (at most 2 left), 4 (3 or 4) or
+    8, the shares' blocks interleaved so that each thread takes about one share: a batch of 20 (a
+    default job's) on 2 threads runs 8 + 2 on each thread, where blocks of 8, 8 and 4-in-8 left one
+    thread idle for the last (benchmarks/README.md)."""
     L = block_size(n, n_threads)
     if L == 1:
         return []
@@ -131,7 +135,8 @@ def block_plan(n: int, n_threads: int) -> list[tuple[int, int, int]]:
         lo, hi = t * n // n_threads, (t + 1) * n // n_threads
         blocks = []
         while lo < hi:
-            size = L if hi - lo >= L or hi - lo > 4 else 4
+            left = hi - lo
+            size = L if left >= L or left > 4 else next(b for b in (2, 4) if left <= b)
             blocks.append((lo, min(lo + size, hi), size))
             lo += size
         shares.append(blocks)

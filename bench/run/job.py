@@ -32,7 +32,7 @@ hydra_guard.install()  # here too for a launcher's worker, which imports this mo
 # settings that change how a job is shown or run, not what it computes: left out of its identity
 PRESENTATION_KEYS = ("progress_every_s", "progress", "report", "plugins", "hydra", "verdict", "log_metrics",
                      "threads", "filter_block")
-FILTER_BLOCKS = (1, 4, 8)  # avio.filter.batch.set_block: 1 numba's per-filter kernel, 4 and 8 the lock-step blocks
+FILTER_BLOCKS = (1, 2, 4, 8)  # avio.filter.batch.set_block: 1 numba's per-filter kernel, 2, 4, 8 lock-step blocks
 _MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 

@@ -1,5 +1,5 @@
 """How a batch's lock-step blocks are laid over the threads (avio.filter.batch.block_plan), timed on a
-default job's batches: the default plan (near-equal shares per thread, each share's rest in a block of 4)
+default job's batches: the default plan (near-equal shares per thread, each share's rest in a block of 2 or 4)
 against consecutive blocks of 8 (``set_block(8)``, the rule before it), paired and in a new random order
 each pair, with the same bits checked.
 

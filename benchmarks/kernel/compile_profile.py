@@ -3,11 +3,11 @@ exclusive (the function's own typing, lowering, LLVM optimisation and code gener
 re-optimising and re-generating the code of every callee linked into it) and inclusive (its callees'
 compiles too).
 
-    python benchmarks/kernel/compile_profile.py [--block 1|4|8] [--batch N] [--top 25] [--cache DIR]
+    python benchmarks/kernel/compile_profile.py [--block 1|2|4|8] [--batch N] [--top 25] [--cache DIR]
 
 Runs kitti00 frames 15-60 once with an empty numba cache (a temporary folder unless ``--cache``
 names one: a second run into the same folder shows what the other kernel adds once the shared stages
-are cached). ``--block 1`` (a batch of 1 by default) compiles numba's per-filter kernel, 4 or 8 the
+are cached). ``--block 1`` (a batch of 1 by default) compiles numba's per-filter kernel, 2, 4 or 8 the
 lock-step kernel (a batch of 8 by default).
 """
 
@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--block", type=int, default=1, choices=(1, 4, 8))
+    p.add_argument("--block", type=int, default=1, choices=(1, 2, 4, 8))
     p.add_argument("--batch", type=int, help="calibrations (default 1 for --block 1, else 8)")
     p.add_argument("--top", type=int, default=25)
     p.add_argument("--cache", help="numba cache folder (default: a new temporary one)")

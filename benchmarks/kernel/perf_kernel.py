@@ -65,7 +65,7 @@ def _perf_map(path: str) -> int:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--block", type=int, default=8, choices=(1, 4, 8), help="avio.filter.batch.set_block")
+    p.add_argument("--block", type=int, default=8, choices=(1, 2, 4, 8), help="avio.filter.batch.set_block")
     p.add_argument("--seconds", type=float, default=30.0)
     p.add_argument("--out", default="perf.data")
     p.add_argument("--data", default=str(REPO.parent / "shared" / "data"))

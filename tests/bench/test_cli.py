@@ -59,8 +59,8 @@ def test_sweep_runs_exactly_as_typed_and_writes_the_leaderboard(tmp_path):
         (["threads=abc"], "threads must be auto or an integer from 1 to"),
         ([f"threads={(os.cpu_count() or 1) + 1}"], f"(this machine's cores), got {(os.cpu_count() or 1) + 1}"),
         (["threads=1,0"], "threads must be auto or an integer from 1 to"),  # swept: not in the identity
-        (["filter_block=3"], "filter_block must be auto or one of 1, 4, 8, got 3"),
-        (["filter_block=eight"], "filter_block must be auto or one of 1, 4, 8, got 'eight'"),
+        (["filter_block=3"], "filter_block must be auto or one of 1, 2, 4, 8, got 3"),
+        (["filter_block=eight"], "filter_block must be auto or one of 1, 2, 4, 8, got 'eight'"),
         (["log_metrics=all,some"], "log_metrics must be one of"),  # every job's, not once per identity
         (["plugins=[.evil]"], "plugins: '.evil' is not an absolute module name"),
         (["plugins=['']"], "plugins: '' is not an absolute module name"),
@@ -200,3 +200,19 @@ def test_a_single_job_in_hydra_run_mode(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "job 1/1 sphere/random/i0" in proc.stderr
     assert {"record.json", "job.json", "evals.jsonl"} <= {p.name for p in (tmp_path / "one").iterdir()}
+
+
+def test_the_harness_runs_blas_on_one_thread_unless_the_environment_says_otherwise():
+    code = ("import bench, numpy, scipy.linalg\nfrom threadpoolctl import threadpool_info\n"
+            "print(sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}))")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+    def blas_threads(**more) -> str:
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**env, **more},
+                              cwd=ROOT, timeout=120)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip()
+
+    assert blas_threads() == "[1]"
+    if (os.cpu_count() or 1) >= 2:
+        assert blas_threads(OPENBLAS_NUM_THREADS="2") == "[2]"  # the user's setting is kept

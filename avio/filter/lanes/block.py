@@ -1,4 +1,4 @@
-"""Filters in lock-step (issue 30): a block of L = 4 or 8 filters advanced frame by frame together, the dense
+"""Filters in lock-step (issue 30): a block of L = 2, 4 or 8 filters advanced frame by frame together, the dense
 phases of every frame (the covariance prediction, C P and Sigma, the 12x12 solve, the gain and
 downdate) run for all L at once in C (covariance.c, update.c: the lanes of one SIMD operation are L
 filters), the rest (propagation of the state, measurement, outlier tests, information sum, statistics,

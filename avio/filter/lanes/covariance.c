@@ -186,6 +186,7 @@ void lanes_gain_##L(double *P, const double *PCt, const double *X, const double 
 #define TL_AT(a, b) T[((a) * 27 + (b)) * NL + l]
 #define UL_AT(a, b) U[((a) * 15 + (b)) * NL + l]
 
+COV_LANES(2)
 COV_LANES(4)
 COV_LANES(8)
 
@@ -229,6 +230,7 @@ void lanes_proj_##L(const double *C, const double *P, double *CP, double *PCt, d
     proj_lanes_##L(C, P, CP, PCt, Sig);                                                                      \
 }
 
+PROJ_LANES(2)
 PROJ_LANES(4)
 PROJ_LANES(8)
 
@@ -286,5 +288,6 @@ void lanes_finite_##L(const double *restrict P, unsigned char *restrict bad) {  
     for (int l = 0; l < L; l++) bad[l] = nf[l];                                                              \
 }
 
+SLIDE_LANES(2)
 SLIDE_LANES(4)
 SLIDE_LANES(8)

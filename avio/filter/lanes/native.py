@@ -31,7 +31,7 @@ SOURCES = ("covariance.c", "update.c")
 #: lane's select into a blend instead of a branch.
 FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-fast-math", "-fno-trapping-math", "-shared", "-fPIC")
 #: The block sizes the C is instantiated for (the ``lanes_*_<L>`` functions).
-BLOCK_SIZES = (4, 8)  # a block of one filter is numba's per-filter kernel (avio/filter/kernels.py)
+BLOCK_SIZES = (2, 4, 8)  # a block of one filter is numba's per-filter kernel (avio/filter/kernels.py)
 _PTR = ctypes.c_void_p
 
 

@@ -153,6 +153,7 @@ void solve_lanes_calls_##L(const double *A0, const double *B0, double *A, double
 }                                                                                                            \
 void lanes_solve_##L(double *A, double *B, double *ra, double *rb) { solve_lanes_##L(A, B, ra, rb); }
 
+SOLVE_LANES(2)
 SOLVE_LANES(4)
 SOLVE_LANES(8)
 
@@ -208,6 +209,7 @@ void info_lanes_calls_##L(double *A, double *beta, double *X, const double *rw, 
     for (long k = 0; k < n; k++) info_lanes_##L(A, beta, X, rw, Jw, jw_f, inl, ldR, stats, (int)F);         \
 }
 
+INFO_LANES(2)
 INFO_LANES(4)
 INFO_LANES(8)
 
@@ -316,5 +318,6 @@ void lanes_stats_##L(const double *restrict Sig, const double *restrict X, const
     for (int l = 0; l < L; l++) { res[l * 2] = nis[l]; res[l * 2 + 1] = tr[l]; }                             \
 }
 
+STATS_LANES(2)
 STATS_LANES(4)
 STATS_LANES(8)

@@ -54,8 +54,8 @@ def test_every_block_size_gives_the_per_filter_kernels_bits():
 
 
 def test_the_block_size_is_one_of_its_values_or_one_message():
-    for bad in (0, 2, 16, -1, True, 4.5, "8"):
-        with pytest.raises(FilterError, match=r"set_block: n must be one of \(1, 4, 8\) or None"):
+    for bad in (0, 3, 16, -1, True, 4.5, "8"):
+        with pytest.raises(FilterError, match=r"set_block: n must be one of \(1, 2, 4, 8\) or None"):
             set_block(bad)
     assert set_block(4) == 4 and set_block(None) is None
 
@@ -63,24 +63,23 @@ def test_the_block_size_is_one_of_its_values_or_one_message():
 @needs_c
 def test_the_default_block_fills_every_thread():
     set_block(None)
-    assert [block_size(n, 2) for n in (1, 2, 7, 8, 16, 64)] == [1, 1, 4, 4, 8, 8]
-    assert block_size(3, 1) == 1 and block_size(8, 1) == 8
+    # a batch of one: numba's per-filter kernel; two or more: blocks, so one kernel serves them all
+    assert [block_size(n, 2) for n in (1, 2, 3, 7, 8, 16, 64)] == [1, 2, 2, 4, 4, 8, 8]
+    assert block_size(1, 1) == 1 and block_size(3, 1) == 2 and block_size(8, 1) == 8
     set_block(1)
     assert block_size(64, 2) == 1
 
 
 @needs_c
-@pytest.mark.parametrize("n", [4, 9, 11, 17, 20, 33, 64])
+@pytest.mark.parametrize("n", [2, 3, 4, 9, 11, 17, 20, 33, 64])
 @pytest.mark.parametrize("n_threads", [1, 2])
 def test_the_default_plan_covers_the_batch_once_in_equal_shares(n, n_threads):
     set_block(None)
     plan = block_plan(n, n_threads)
-    if not plan:  # too few filters per thread for a block: the per-filter kernel
-        assert block_size(n, n_threads) == 1 and n / n_threads < 4
-        return
     assert sorted(i for lo, hi, _ in plan for i in range(lo, hi)) == list(range(n))
     assert all(0 < hi - lo <= L and L in native.BLOCK_SIZES for lo, hi, L in plan)
-    assert all(hi - lo > 4 for lo, hi, L in plan if L == 8)  # a rest of at most 4 takes a block of 4
+    assert all(hi - lo > 4 for lo, hi, L in plan if L == 8)  # a rest of at most 4 takes a block of 4 or 2
+    assert all(hi - lo > 2 for lo, hi, L in plan if L == 4 and hi - lo < 4)  # a rest of 1 or 2: a block of 2
     # each thread's share (every n_threads-th block from its first) holds n / n_threads filters, +-1
     shares = [sum(hi - lo for lo, hi, _ in plan[t::n_threads]) for t in range(n_threads)]
     assert max(shares) - min(shares) <= 1 or n_threads == 1, plan
@@ -89,12 +88,14 @@ def test_the_default_plan_covers_the_batch_once_in_equal_shares(n, n_threads):
 
 
 def test_the_default_plan_of_a_default_jobs_batch():
-    """psoga's batches of 20 on 2 threads: 8 + 2 on each thread, not 8, 8 and a block of 8 holding 4."""
+    """psoga's batches of 20 on 2 threads: 8 + 2 on each thread, not 8, 8 and a block of 8 holding 4; the
+    problem's two anchors (the reference and true calibrations) one on each thread, in the same kernel."""
     set_block(None)
     if native.unavailable() is not None:
-        assert block_plan(20, 2) == []
+        assert block_plan(20, 2) == block_plan(2, 2) == []
     else:
-        assert block_plan(20, 2) == [(0, 8, 8), (10, 18, 8), (8, 10, 4), (18, 20, 4)]
+        assert block_plan(20, 2) == [(0, 8, 8), (10, 18, 8), (8, 10, 2), (18, 20, 2)]
+        assert block_plan(2, 2) == [(0, 1, 2), (1, 2, 2)] and block_plan(1, 2) == []
 
 
 def _fallback_run(env: dict) -> subprocess.CompletedProcess:
