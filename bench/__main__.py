@@ -30,7 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 from bench.errors import BenchError
 from bench.records import job_name
 from bench.run import callbacks, hydra_guard
-from bench.run.compose_cache import skip_sweeper_validation
+from bench.run.compose_cache import known_run_mode, skip_sweeper_validation
 from bench.run.job import exit_with_the_sweep, plain, run_configured_job
 from bench.run.preflight import CONF_DIR, preflight_plan
 from bench.run.slurm_check import check_launcher
@@ -148,6 +148,8 @@ def main(argv: list[str] | None = None) -> None:
                                            if d.is_relative_to(plan.sweep_dir)]
     if plan is not None:
         skip_sweeper_validation()  # preflight composed every job: Hydra's sweeper need not again (~0.1 s a job)
+        if plan.mode is not None:
+            known_run_mode(plan.mode)  # nor Hydra's own composition that only reads hydra.mode
     os.environ["BENCH_SWEEP_PID"] = str(os.getpid())  # launchers' local workers exit when it is gone
     os.environ["BENCH_SWEEP_HOST"] = socket.gethostname()
     os.environ["BENCH_SWEEP_JOBS"] = str(plan.n_jobs) if plan is not None else ""
@@ -171,6 +173,9 @@ def cli() -> None:
     (with the freeze after the imports, 4.41-4.58 -> 4.13-4.23 s for a 500-evaluation job). Not in ``main``,
     which tests call in their own process."""
     gc.freeze()  # the objects of the imports so far (Hydra, OmegaConf): no collection during the run walks them
+    # A collection every 50,000 allocations, not 700: the imports and compositions still to come allocate
+    # objects that live as long as the process (a default job 1.016x, 7 pairs: benchmarks/README.md).
+    gc.set_threshold(50_000, 20, 100)
     try:
         main()
     finally:

@@ -22,7 +22,7 @@ filter in avio/filter.py, the loaders in avio/kitti00.py ...): each package's la
 from its files (``module_names``), so any commit with a KITTI 00 loader can be the base.
 
 ``--blocks`` times the working tree at each of these lock-step block sizes (avio.filter.batch.set_block:
-1 numba's per-filter kernel, 4 and 8 the C blocks), each in every pair; without it, its default.
+1 numba's per-filter kernel, 2, 4 and 8 the C blocks), each in every pair; without it, its default.
 
 ``--compile-pairs K`` times the first-run compile instead: K pairs of processes, each with an empty
 numba cache, the CPU time of its first filter call (batch 1; the call that compiles the kernel).
@@ -184,8 +184,8 @@ def main(argv=None) -> None:
         print(f"ab_kernel: --compile-pairs {args.compile_pairs}: expected an integer >= 0", file=sys.stderr)
         raise SystemExit(2)
     for block in args.blocks or []:
-        if block not in (1, 4, 8):
-            print(f"ab_kernel: --blocks {block}: expected 1, 4 or 8", file=sys.stderr)
+        if block not in (1, 2, 4, 8):
+            print(f"ab_kernel: --blocks {block}: expected 1, 2, 4 or 8", file=sys.stderr)
             raise SystemExit(2)
     both_set, tree_set = _overrides("--set", args.set), _overrides("--tree-set", args.tree_set)
     data = Path(args.data)

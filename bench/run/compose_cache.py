@@ -144,6 +144,18 @@ def skip_sweeper_validation() -> None:
     Sweeper.validate_batch_is_legal = _validated_by_preflight
 
 
+def known_run_mode(mode) -> None:
+    """Let Hydra take its run mode (``hydra.mode``) as preflight read it, instead of composing the whole config
+    once more to read it (``Hydra.get_mode``: 0.06 s of a 4-s job). ``python -m bench`` calls this only with
+    the mode of a config preflight composed from the same command line. For this process only."""
+    from hydra._internal.hydra import Hydra
+
+    def get_mode(self, config_name, overrides):
+        return mode
+
+    Hydra.get_mode = get_mode
+
+
 def _validated_by_preflight(self, batch) -> None:
     """Every job of ``batch`` was composed by ``bench.run.preflight`` (see ``skip_sweeper_validation``)."""
 

@@ -1,19 +1,17 @@
 """Validate every job of a sweep before any work starts, and before Hydra writes anything.
 
-Hydra composes and launches jobs one by one, so a typo in the fifth optimiser name, a budget
-of 0 or a missing data file would surface only after the first jobs ran. Here the command
-line is expanded exactly as Hydra's basic sweeper expands it, each job config is composed
-with Hydra's compose API, and each is checked: the instance (an integer >= 0), the report's verdict
-settings (``bench.verdict_settings``), registered names, plugins, budget, seed, progress interval,
-the filter's threads (``threads``, NUMBA_NUM_THREADS), no NaN, the problem's own cheap checks
-(``Problem.preflight``: its search space, its data files), the problem itself (built once per
-distinct problem config, as the first job would build it: a serial sweep's jobs then reuse it), the
-optimiser built on the job's space with its hyperparameters (and asked once), the sweep folder (a
-writable folder), and every job folder that already exists (it must hold this very job — same
-resolved config —, not be in use by another process, and hold no symbolic link in place of its
-files). The first problem found is one clear message and exit code 2; nothing has been written.
-A problem whose truth lies outside its search bounds is warned about, one line per problem, before
-the sweep starts (``bench.run.design_checks``).
+Hydra composes and launches jobs one by one, so a typo in the fifth optimiser name, a budget of 0 or a missing
+data file would surface only after the first jobs ran. Here the command line is expanded exactly as Hydra's
+basic sweeper expands it, each job config is composed with Hydra's compose API, and each is checked: the
+instance (an integer >= 0), the report's verdict settings (``bench.verdict_settings``), registered names,
+plugins, budget, seed, progress interval, the filter's threads (``threads``, NUMBA_NUM_THREADS), no NaN, the
+problem's own cheap checks (``Problem.preflight``: its search space, its data files), the problem itself
+(built once per distinct problem config, as the first job would build it: a serial sweep's jobs then reuse
+it), the optimiser built on the job's space with its hyperparameters (and asked once), the sweep folder (a
+writable folder), and every job folder that already exists (it must hold this very job — same resolved config
+—, not be in use by another process, and hold no symbolic link in place of its files). The first problem found
+is one clear message and exit code 2; nothing has been written. A problem whose truth lies outside its search
+bounds is warned about, one line per problem, before the sweep starts (``bench.run.design_checks``).
 """
 
 from __future__ import annotations
@@ -64,11 +62,12 @@ _HYDRA_FLAGS_WITHOUT_JOBS = {"--help", "-h", "--hydra-help", "--version", "--inf
 
 @dataclass
 class SweepPlan:
-    """What preflight found: the number of distinct jobs, the sweep folder (when it could be resolved)."""
+    """What preflight found: the number of distinct jobs, the sweep folder (when resolved), Hydra's ``hydra.mode``."""
 
     n_jobs: int = 0
     sweep_dir: Path | None = None
     job_dirs: list[Path] = field(default_factory=list)
+    mode: object = None
 
 
 def expand_jobs(argv: list[str]) -> list[list[str]]:
@@ -115,8 +114,7 @@ def check_keys(argv: list[str]) -> None:
     """
     overrides = [a for a in argv if not a.startswith("-")]
     search = [o for o in overrides if o.lstrip("+~").startswith("hydra.searchpath")]
-    parsed = OverridesParser.create().parse_overrides(
-        [o for o in overrides if not o.lstrip("+~").startswith("hydra")])
+    parsed = OverridesParser.create().parse_overrides([o for o in overrides if not o.lstrip("+~").startswith("hydra")])
     if not parsed:
         return
     known = top_level_keys(CONF_DIR, search)
@@ -342,6 +340,7 @@ def plan(argv: list[str]) -> SweepPlan:
             composer = JobComposer(hydra_overrides)  # Hydra's full composition once per kind of job
             for job_overrides in jobs:
                 hcfg = composer(job_overrides)
+                result.mode = OmegaConf.select(hcfg, "hydra.mode")  # every job's: only hydra overrides set it
                 cfg = job_part(hcfg)
                 instance_of(cfg), seed_of(cfg)  # each configuration checked once below
                 check_presentation(cfg)  # every job: these keys are not in the identity; first: NUMBA_NUM_THREADS

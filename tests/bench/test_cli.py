@@ -216,3 +216,28 @@ def test_the_harness_runs_blas_on_one_thread_unless_the_environment_says_otherwi
     assert blas_threads() == "[1]"
     if (os.cpu_count() or 1) >= 2:
         assert blas_threads(OPENBLAS_NUM_THREADS="2") == "[2]"  # the user's setting is kept
+
+
+def test_hydra_takes_the_run_mode_preflight_read_instead_of_composing_the_config_again(tmp_path):
+    code = ("from hydra._internal.hydra import Hydra\n"
+            "calls = []\n"
+            "compose = Hydra.compose_config\n"
+            "def counted(self, *args, **kwargs):\n"
+            "    calls.append(kwargs.get('validate_sweep_overrides', True))  # False: Hydra.get_mode's\n"
+            "    return compose(self, *args, **kwargs)\n"
+            "Hydra.compose_config = counted\n"
+            "from bench.__main__ import main\n"
+            f"main(['problem=sphere', 'optimizer=random', 'instance=0', 'budget.evals=32', 'report=false',\n"
+            f"      'hydra.sweep.dir={tmp_path / 's'}'])\n"
+            "print('compositions', len(calls), 'for the mode', calls.count(False))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "for the mode 0" in done.stdout and (tmp_path / "s" / "sphere" / "random" / "i0" / "record.json").exists()
+
+
+def test_the_command_collects_garbage_every_50000_allocations_not_700():
+    code = ("import gc, sys\nfrom bench.__main__ import cli\nsys.argv = ['avio-bench', '--version']\n"
+            "before = gc.get_threshold()\ncli()\nprint(before[0], gc.get_threshold())")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[-2] == "700 (50000, 20, 100)", done.stdout
