@@ -1,6 +1,6 @@
 """Today's filter gives, to the bit, every output of the filter of a pinned commit taken from the
 git history (tests/avio/filter/git_reference.py): numba's per-filter kernel and the lock-step blocks of
-4 and 8 filters (avio/filter/lanes/), at batch sizes 1, 3 and 8 and 1 or 2 threads, for every
+2, 4 and 8 filters (avio/filter/lanes/), at batch sizes 1, 3 and 8 and 1 or 2 threads, for every
 outlier mode, on a short simulated drive (and on kitti00 15-796 with the real data).
 
 The reference is frozen: the whole avio package of that commit, imported under a private name,
@@ -111,7 +111,7 @@ def test_same_bits_as_the_reference_commit_at_every_batch_size_and_thread_count(
     cfg = FilterConfig(**config)
     prep = prepare(seq, cfg)
     batches = {1: [7], 3: [6, 0, 4], 8: list(range(8))}  # the wild one alone; a reordered three; all
-    set_block(block)  # a block of 4 or 8 runs the batch of 3 in one partly empty block
+    set_block(block)  # a block of 4 or 8 runs the batch of 3 in one partly empty block, 2 in two
     for n_threads in (1, 2):
         set_threads(n_threads)
         for size, idx in batches.items():

@@ -38,7 +38,7 @@ def test_every_block_size_gives_the_per_filter_kernels_bits():
     seq = make_circle_sequence(30, seed=5, pixel_noise_px=0.5, outlier_fraction=0.1)
     cfg = FilterConfig(divergence_max_speed_mps=7.02)  # some lanes diverge mid-run, the others go on
     prep = prepare(seq, cfg)
-    cal = _candidates(seq.truth_calibration, 11, seed=2)  # 11: blocks of 4 and 8 end part-empty
+    cal = _candidates(seq.truth_calibration, 11, seed=2)  # 11: blocks of 2, 4 and 8 end part-empty
     set_threads(1)
     set_block(1)
     want = _arrays(run(seq, cal, cfg, prep, record_used=True))
