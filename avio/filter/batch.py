@@ -136,7 +136,7 @@ def block_plan(n: int, n_threads: int) -> list[tuple[int, int, int]]:
         blocks = []
         while lo < hi:
             left = hi - lo
-            size = L if left >= L or left > 4 else next(b for b in (2, 4) if left <= b)
+            size = L if left >= L or left > 4 else (2 if left <= 2 else 4)
             blocks.append((lo, min(lo + size, hi), size))
             lo += size
         shares.append(blocks)
