@@ -52,6 +52,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from flops import per_evaluation, rate_line
+from kernel.default_job import DEFAULT_JOB
 
 from avio.calibration import Calibration
 from avio.filter.batch import run, set_threads
@@ -320,7 +321,6 @@ def _makespan(costs, bounds, n_threads: int = 2) -> float:
 #: One job of the default problem at issue 30's size (psoga, instance 0, 500 evaluations), not the
 #: default sweep (python -m bench alone runs 12 instances x 6 optimisers since the design of
 #: docs/guide/verdicts.md); the same command as benchmarks/README.md's default-job rows.
-DEFAULT_JOB = ("optimizer=psoga", "instance=0", "budget.evals=500", "report=false")
 
 
 def schedule(args) -> None:

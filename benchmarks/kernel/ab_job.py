@@ -27,9 +27,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from default_job import DEFAULT_JOB
 
 REPO = Path(__file__).resolve().parents[2]
-JOB = ("optimizer=psoga", "instance=0", "budget.evals=500", "report=false")
 
 
 def _unpack(commit: str, into: Path) -> None:
@@ -43,7 +43,7 @@ def _job(tree: Path, env: dict | None = None) -> tuple[float, float]:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "bench", *JOB, f"hydra.sweep.dir={out}/sweep"], cwd=tree,
+        done = subprocess.run([sys.executable, "-m", "bench", *DEFAULT_JOB, f"hydra.sweep.dir={out}/sweep"], cwd=tree,
                               capture_output=True, text=True, env=env)
         wall = time.perf_counter() - t0
     if done.returncode:

@@ -26,11 +26,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
+from default_job import DEFAULT_JOB
+
 from avio.filter import set_threads
 from avio.filter.batch import block_plan, set_block
 from bench.problems.synthetic import Synthetic
 
-DEFAULT_JOB = ("optimizer=psoga", "instance=0", "budget.evals=500", "report=false")
 PLANS = {"default": None, "blocks of 8": 8}
 
 

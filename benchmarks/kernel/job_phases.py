@@ -22,8 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from default_job import DEFAULT_JOB
+
 REPO = Path(__file__).resolve().parents[2]
-JOB = ("optimizer=psoga", "instance=0", "budget.evals=500", "report=false")
 DEFAULT = ("bench.run.preflight:preflight_plan", "bench.problems.base:build_problem",
            "hydra._internal.hydra:Hydra.compose_config", "hydra._internal.hydra:Hydra.multirun",
            "bench.run.job:run_configured_job", "bench.run.loop:_run_batches", "bench.problems.vio:run",
@@ -60,7 +61,7 @@ def _one(specs: list[str], sweep: str) -> None:
         _timed(spec, start, table)
     from bench.__main__ import cli
 
-    sys.argv = ["bench", *JOB, f"hydra.sweep.dir={sweep}"]
+    sys.argv = ["bench", *DEFAULT_JOB, f"hydra.sweep.dir={sweep}"]
     try:
         cli()
     except SystemExit:
